@@ -1,0 +1,45 @@
+# Two commands on a fresh machine: `make demo` and `make test` (see README).
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+SYSTAMP := $(VENV)/.system-packages
+
+.PHONY: demo test lint typecheck pytest bench clean system-packages
+
+# Debian/Raspberry Pi OS packages the project needs: venv support for python3, and
+# systemd's systemd-analyze for the unit-file tests. Installed only when missing.
+$(SYSTAMP):
+	@bash tools/system-packages.sh
+	@mkdir -p $(VENV) && touch $@
+
+$(STAMP): pyproject.toml $(SYSTAMP)
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test,dev]'
+	# MAVProxy is a test peer (a real ground station/hub). Its own requirements pull in
+	# opencv-python 5.x, matplotlib and vtk for map and GUI modules we do not use; the
+	# 5.x cv2 would shadow our headless 4.x, so it goes in without them.
+	$(BIN)/python -m pip install --quiet --no-deps 'mavproxy>=1.8.70' pynmeagps defusedxml
+	@touch $@
+
+demo: $(STAMP)
+	$(BIN)/rescue-sim demo
+
+test: $(STAMP) lint typecheck pytest
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: $(STAMP)
+	$(BIN)/mypy companion mavlink_io fusion scenarios hq
+
+pytest: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python -m bench
+
+clean:
+	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache .pytest_cache

@@ -1,0 +1,355 @@
+"""The companion's configuration: one TOML file, loaded once into frozen dataclasses.
+
+Every section is a frozen dataclass; the loader walks its type hints, so a key that
+is not a field is an error (a typo must not be silently ignored) and a value of the
+wrong type names the section, the key, the value and what is allowed. Range checks
+live in each dataclass's ``__post_init__`` and surface the same way. Relative paths
+are taken relative to the config file's directory.
+
+``docs/CONFIG.md`` documents every key; ``systemd/config.example.toml`` is a full,
+commented example. Both are checked against these classes by the tests.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from fusion.params import GeolocationParams, TrackerParams
+from mavlink_io.errors import LinkSpecError
+from mavlink_io.linkspec import parse_link
+
+
+class ConfigError(Exception):
+    """The configuration cannot be used. The message is one line for a person."""
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """The link to the autopilot."""
+
+    url: str = "udpin:127.0.0.1:14550"  # serial:/dev/ttyAMA0:921600 on the Pi
+    system_id: int = 0  # 0: learn it from the autopilot's HEARTBEAT
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    heartbeat_timeout_s: float = 3.0  # silence after which the link counts as lost
+    attitude_rate_hz: float = 20.0
+    local_position_rate_hz: float = 20.0
+    global_position_rate_hz: float = 5.0
+    reopen_max_backoff_s: float = 1.0  # a vanished serial device is retried at most this far apart
+    pose_history_s: float = 30.0  # how much pose history is kept for interpolation
+
+    def __post_init__(self) -> None:
+        parse_link(self.url)
+        if not 0 <= self.system_id <= 255:
+            raise ValueError(f"system_id = {self.system_id}: must be in 0..255 (0 = learn)")
+        if not 1 <= self.component_id <= 255:
+            raise ValueError(f"component_id = {self.component_id}: must be in 1..255")
+        for name in (
+            "heartbeat_timeout_s",
+            "attitude_rate_hz",
+            "local_position_rate_hz",
+            "global_position_rate_hz",
+            "reopen_max_backoff_s",
+            "pose_history_s",
+        ):
+            _positive(self, name)
+
+
+@dataclass(frozen=True)
+class HqConfig:
+    """How the full dialect reports reach rescue-hq."""
+
+    url: str = ""  # direct link, e.g. udpout:10.0.0.2:14600; "" = none
+    tunnel: bool = True  # also send them inside TUNNEL over the vehicle link
+    resend_initial_s: float = 1.0  # first resend of an unacknowledged report
+    resend_max_s: float = 30.0  # the backoff doubles up to this
+    hq_timeout_s: float = 10.0  # HQ counts as unheard after this silence
+
+    def __post_init__(self) -> None:
+        if self.url:
+            parse_link(self.url)
+        for name in ("resend_initial_s", "resend_max_s", "hq_timeout_s"):
+            _positive(self, name)
+        if self.resend_max_s < self.resend_initial_s:
+            raise ValueError(f"resend_max_s = {self.resend_max_s}: must be >= resend_initial_s")
+
+
+@dataclass(frozen=True)
+class SigningConfig:
+    """MAVLink 2 message signing."""
+
+    enabled: bool = False
+    key_file: Path | None = None  # 32-byte key (raw, or 64 hex chars); mode 0600
+    link_id: int = 0
+
+    def __post_init__(self) -> None:
+        if self.enabled and self.key_file is None:
+            raise ValueError("key_file: required when enabled = true")
+        if not 0 <= self.link_id <= 255:
+            raise ValueError(f"link_id = {self.link_id}: must be in 0..255")
+
+
+@dataclass(frozen=True)
+class MountConfig:
+    """The camera's place on the vehicle, in the body frame FRD."""
+
+    x_m: float = 0.15  # forward of the reference point
+    y_m: float = 0.0  # right
+    z_m: float = -0.20  # down (negative: above)
+    roll_deg: float = 0.0
+    pitch_deg: float = -25.0  # negative: tilted down
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Where frames come from and the camera's geometry."""
+
+    source: str = "sim"  # sim | device:N | /dev/videoN | file:PATH | frames:DIR | picamera2 | gstreamer:PIPELINE | rtsp://...
+    width_px: int = 640
+    height_px: int = 480
+    fps: float = 10.0
+    hfov_deg: float = 70.0  # used when neither fx_px nor a calibration file is given
+    fx_px: float = 0.0  # 0: from hfov_deg
+    fy_px: float = 0.0
+    cx_px: float = 0.0  # 0 with fx_px 0: the image centre
+    cy_px: float = 0.0
+    distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)  # k1 k2 p1 p2 k3
+    calibration_file: Path | None = None  # OpenCV FileStorage YAML/XML or ROS camera_info YAML
+    mount: MountConfig = field(default_factory=MountConfig)
+    reopen_max_backoff_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not self.source.strip():
+            raise ValueError("source: must not be empty")
+        if self.width_px <= 0 or self.height_px <= 0:
+            raise ValueError(
+                f"width_px x height_px = {self.width_px}x{self.height_px}: must be positive"
+            )
+        _positive(self, "fps")
+        if not 1.0 <= self.hfov_deg < 179.0:
+            raise ValueError(f"hfov_deg = {self.hfov_deg}: must be in [1, 179)")
+        if (self.fx_px > 0) != (self.fy_px > 0) or self.fx_px < 0 or self.fy_px < 0:
+            raise ValueError("fx_px, fy_px: give both (> 0) or neither (0)")
+        if len(self.distortion) not in (0, 4, 5):
+            raise ValueError(
+                f"distortion = {list(self.distortion)}: give 4 or 5 coefficients (k1 k2 p1 p2 [k3])"
+            )
+        _positive(self, "reopen_max_backoff_s")
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Which detector runs, and its settings."""
+
+    backend: Literal["classic", "dnn", "hog"] = "classic"
+    enhance: bool = True  # dark-scene enhancement before detection
+    min_score: float = 0.5
+    dnn_model: Path | None = None  # ONNX file, YOLO-style output
+    dnn_input_px: int = 640  # square network input
+    dnn_person_class_ids: tuple[int, ...] = (0,)
+    dnn_nms_iou: float = 0.45
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_score <= 1.0:
+            raise ValueError(f"min_score = {self.min_score}: must be in [0, 1]")
+        if self.backend == "dnn" and self.dnn_model is None:
+            raise ValueError("dnn_model: required with backend = 'dnn'")
+        if self.dnn_input_px < 32 or self.dnn_input_px % 32:
+            raise ValueError(f"dnn_input_px = {self.dnn_input_px}: must be a multiple of 32, >= 32")
+        if not 0.0 < self.dnn_nms_iou <= 1.0:
+            raise ValueError(f"dnn_nms_iou = {self.dnn_nms_iou}: must be in (0, 1]")
+
+
+@dataclass(frozen=True)
+class ReportingConfig:
+    """What is told to the HQ, and when."""
+
+    statustext: bool = True  # STATUSTEXT that a stock QGC shows and speaks
+    map_marker: bool = True  # CAMERA_IMAGE_CAPTURED at the victim (needs a global origin)
+    dialect_report: bool = True  # RESCUE_VICTIM_REPORT for rescue-hq
+    status_period_s: float = 1.0  # RESCUE_STATUS and our HEARTBEAT period
+    move_threshold_sigma: float = 1.0  # re-report after moving this many sigmas
+
+    def __post_init__(self) -> None:
+        _positive(self, "status_period_s")
+        _positive(self, "move_threshold_sigma")
+
+
+@dataclass(frozen=True)
+class PathsConfig:
+    """Where state and recordings go."""
+
+    state_dir: Path = Path("/var/lib/rescue-companion")  # SQLite registry and outbox
+    tlog_dir: Path | None = None  # None: state_dir/tlogs
+    tlog_max_mb: float = 64.0  # rotate the tlog at this size
+    record_frames: bool = False  # also save camera frames for replay
+
+    def __post_init__(self) -> None:
+        _positive(self, "tlog_max_mb")
+
+    @property
+    def tlogs(self) -> Path:
+        return self.tlog_dir if self.tlog_dir is not None else self.state_dir / "tlogs"
+
+
+@dataclass(frozen=True)
+class Config:
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    hq: HqConfig = field(default_factory=HqConfig)
+    signing: SigningConfig = field(default_factory=SigningConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    geolocation: GeolocationParams = field(default_factory=GeolocationParams)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    reporting: ReportingConfig = field(default_factory=ReportingConfig)
+    paths: PathsConfig = field(default_factory=PathsConfig)
+
+
+def _positive(owner: object, name: str) -> None:
+    value = getattr(owner, name)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} = {value!r}: must be a positive number")
+
+
+# -- the generic loader -------------------------------------------------------------
+
+_TYPE_WORDS = {
+    int: "an integer",
+    float: "a number",
+    bool: "true or false",
+    str: "a string",
+    Path: "a path string",
+}
+
+
+def _describe(tp: Any) -> str:
+    if tp in _TYPE_WORDS:
+        return _TYPE_WORDS[tp]
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        return f"a list of {_describe(typing.get_args(tp)[0])}s"
+    if origin in (types.UnionType, typing.Union):
+        return " or ".join(_describe(a) for a in typing.get_args(tp) if a is not type(None))
+    if dataclasses.is_dataclass(tp):
+        return "a table"
+    return str(tp)
+
+
+class _Bad(Exception):
+    """A value does not fit its type (internal to the loader)."""
+
+
+def _convert(tp: Any, value: Any, where: str, base_dir: Path) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise _Bad
+        return _build(tp, value, where, base_dir)  # type: ignore[arg-type]
+    if origin in (types.UnionType, typing.Union):
+        for arg in typing.get_args(tp):
+            if arg is type(None):
+                continue
+            try:
+                return _convert(arg, value, where, base_dir)
+            except _Bad:
+                continue
+        raise _Bad
+    if origin is Literal:
+        if value in typing.get_args(tp):
+            return value
+        raise _Bad
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise _Bad
+        (item,) = typing.get_args(tp)[:1]
+        return tuple(_convert(item, v, where, base_dir) for v in value)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise _Bad
+    if tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise _Bad
+    if tp is float:
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        raise _Bad
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise _Bad
+    if tp is Path:
+        if isinstance(value, str) and value:
+            path = Path(value).expanduser()
+            return path if path.is_absolute() else (base_dir / path)
+        raise _Bad
+    raise TypeError(f"config loader cannot handle type {tp!r} at {where}")  # a bug, not input
+
+
+def _build(cls: type[Any], data: dict[str, Any], where: str, base_dir: Path) -> Any:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(
+            f"[{where}] has unknown key {unknown[0]!r}; allowed keys: {', '.join(sorted(known))}"
+        )
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        key = f"{where}.{name}" if where else name
+        try:
+            kwargs[name] = _convert(hints[name], value, key, base_dir)
+        except _Bad:
+            raise ConfigError(f"{key} = {value!r}: expected {_describe(hints[name])}") from None
+    try:
+        return cls(**kwargs)
+    except (ValueError, LinkSpecError) as exc:
+        raise ConfigError(f"[{where}] {exc}" if where else str(exc)) from None
+
+
+def config_from_dict(data: dict[str, Any], base_dir: Path = Path(".")) -> Config:
+    """Build a Config from parsed TOML; raises ConfigError naming the bad key."""
+    unknown = sorted(set(data) - {f.name for f in dataclasses.fields(Config)})
+    if unknown:
+        allowed = ", ".join(f.name for f in dataclasses.fields(Config))
+        raise ConfigError(f"unknown section [{unknown[0]}]; allowed sections: {allowed}")
+    hints = typing.get_type_hints(Config)
+    sections: dict[str, Any] = {}
+    for name, value in data.items():
+        if not isinstance(value, dict):
+            raise ConfigError(f"{name} = {value!r}: expected a table [{name}]")
+        sections[name] = _build(hints[name], value, name, base_dir)
+    return Config(**sections)
+
+
+def load_config(path: Path) -> Config:
+    """Load and validate a config file, including its camera calibration file."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read config file: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    try:
+        config = config_from_dict(data, base_dir=path.resolve().parent)
+        # Fail now, not at the first frame, when the calibration cannot be used.
+        from companion.calibration import camera_model
+
+        camera_model(config.camera)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    return config

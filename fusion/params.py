@@ -1,0 +1,100 @@
+"""Tuning parameters of the fusion core, one frozen dataclass per concern.
+
+These are the config file's [geolocation] and [tracker] sections as they are: the
+config loader builds them from TOML and reports a bad value by key. Every field has
+a unit in its name (or is a dimensionless count/probability/log-odds) and a default
+that suits a small rover with a forward camera on a warehouse floor.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+
+def _require(cond: bool, owner: object, name: str, what: str) -> None:
+    if not cond:
+        value = getattr(owner, name)
+        raise ValueError(f"{name} = {value!r}: {what}")
+
+
+def _all_finite(owner: object) -> None:
+    for f in fields(owner):  # type: ignore[arg-type]
+        value = getattr(owner, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{f.name} = {value!r}: must be a finite number")
+
+
+@dataclass(frozen=True)
+class GeolocationParams:
+    """How pixels become floor points, and how uncertain they are."""
+
+    floor_down_m: float = 0.10  # the floor's depth below the vehicle reference point (body z)
+    max_range_m: float = 8.0  # farther floor points are rejected
+    min_range_m: float = 0.2  # nearer ones (the rover's own bumper) too
+    pixel_sigma_px: float = 3.0  # 1-sigma of the detected floor-contact pixel
+    attitude_sigma_deg: float = 1.0  # 1-sigma of roll/pitch/yaw
+    position_sigma_m: float = 0.10  # 1-sigma of the vehicle's local position
+    max_pose_extrapolation_s: float = 0.10  # a frame further than this from any pose is refused
+    body_length_m: float = 1.7  # a lying adult, for the expected image area
+    body_width_m: float = 0.45
+
+    def __post_init__(self) -> None:
+        _all_finite(self)
+        _require(
+            self.max_range_m > self.min_range_m >= 0.0,
+            self,
+            "max_range_m",
+            "must exceed min_range_m >= 0",
+        )
+        _require(self.pixel_sigma_px > 0.0, self, "pixel_sigma_px", "must be > 0")
+        _require(self.attitude_sigma_deg >= 0.0, self, "attitude_sigma_deg", "must be >= 0")
+        _require(self.position_sigma_m >= 0.0, self, "position_sigma_m", "must be >= 0")
+        _require(
+            self.max_pose_extrapolation_s >= 0.0, self, "max_pose_extrapolation_s", "must be >= 0"
+        )
+        _require(self.body_length_m > 0.0, self, "body_length_m", "must be > 0")
+        _require(self.body_width_m > 0.0, self, "body_width_m", "must be > 0")
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Association, life cycle and urgency of victim tracks."""
+
+    gate_chi2: float = 9.21  # Mahalanobis gate, chi-square with 2 dof (9.21 = 99 %)
+    process_noise_m2_s: float = 0.002  # position random walk of a static victim, m^2 per second
+    hit_log_odds: float = 0.85  # support added by a detection
+    miss_log_odds: float = -0.4  # support added when in view and not detected
+    confirm_log_odds: float = 2.5  # tentative -> confirmed at or above this
+    delete_log_odds: float = -1.5  # tentative tracks die below this
+    max_log_odds: float = 8.0  # clamp, so a long-seen track can still lose support
+    tentative_timeout_s: float = 20.0  # a tentative track not seen this long dies
+    not_seen_recently_s: float = 30.0  # a confirmed victim out of sight this long is flagged
+    merge_chi2: float = 5.99  # two confirmed tracks closer than this (95 %, 2 dof) merge
+    urgency_window: int = 15  # recent visibility observations used for the class
+    urgency_hysteresis_pct: float = 3.0  # a class boundary must be crossed by this much
+
+    def __post_init__(self) -> None:
+        _all_finite(self)
+        _require(self.gate_chi2 > 0.0, self, "gate_chi2", "must be > 0")
+        _require(self.process_noise_m2_s >= 0.0, self, "process_noise_m2_s", "must be >= 0")
+        _require(self.hit_log_odds > 0.0, self, "hit_log_odds", "must be > 0")
+        _require(self.miss_log_odds <= 0.0, self, "miss_log_odds", "must be <= 0")
+        _require(self.confirm_log_odds > 0.0, self, "confirm_log_odds", "must be > 0")
+        _require(self.delete_log_odds < 0.0, self, "delete_log_odds", "must be < 0")
+        _require(
+            self.max_log_odds >= self.confirm_log_odds,
+            self,
+            "max_log_odds",
+            "must be >= confirm_log_odds",
+        )
+        _require(self.tentative_timeout_s > 0.0, self, "tentative_timeout_s", "must be > 0")
+        _require(self.not_seen_recently_s > 0.0, self, "not_seen_recently_s", "must be > 0")
+        _require(self.merge_chi2 > 0.0, self, "merge_chi2", "must be > 0")
+        _require(self.urgency_window >= 1, self, "urgency_window", "must be >= 1")
+        _require(
+            0.0 <= self.urgency_hysteresis_pct < 10.0,
+            self,
+            "urgency_hysteresis_pct",
+            "must be in [0, 10)",
+        )
