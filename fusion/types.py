@@ -155,9 +155,13 @@ class Detection:
 
 @dataclass(frozen=True)
 class Observation:
-    """A detection placed on the floor of the local NED frame, ready for the tracker."""
+    """A detection placed on the floor of the local NED frame, ready for the tracker.
 
-    t_mono_s: float
+    Stamped in wall time: the tracker and its saved registry must outlive a restart,
+    which resets the monotonic clock.
+    """
+
+    t_unix_s: float  # capture time of the frame, wall clock
     north_m: float
     east_m: float
     cov_ne_m2: Cov2  # covariance of (north, east)
@@ -168,7 +172,7 @@ class Observation:
     def __post_init__(self) -> None:
         _check_finite(
             self,
-            t_mono_s=self.t_mono_s,
+            t_unix_s=self.t_unix_s,
             north_m=self.north_m,
             east_m=self.east_m,
             visibility_pct=self.visibility_pct,
