@@ -1,0 +1,317 @@
+"""Pixels to floor points in local NED, with an honest 2x2 covariance.
+
+A detection's floor-contact pixel becomes a ray in the camera frame (distortion
+removed), is turned into NED through the camera mount and the vehicle's attitude,
+and starts at the camera's centre (vehicle position plus the rotated mount offset).
+Its intersection with the level floor plane ``down = pose.down_m + floor_down_m``
+is the victim's position. Rays that point at or above the horizon, or hit the floor
+outside [min_range_m, max_range_m] from the camera, are rejected with a reason.
+
+Covariance, first order: with p(u, v, roll, pitch, yaw) the floor point,
+
+    C = J_px diag(s_px^2) J_px^T + J_att diag(s_att^2) J_att^T + s_pos^2 I
+
+where the Jacobians are central differences. Horizontal position noise moves the
+point one to one. Vertical position noise does not enter: the floor is placed
+relative to the vehicle, whose height above it is known from the mount.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from fusion.camera import CameraModel, FloatArray, rotation_zyx
+from fusion.errors import GeolocationRejected
+from fusion.params import GeolocationParams
+from fusion.types import Cov2, PoseSample
+
+_PIXEL_STEP_PX = 0.01  # central-difference steps: small against the noise they model
+_ANGLE_STEP_RAD = 1e-6
+_MIN_DOWN_COMPONENT = 1e-9  # a ray must descend at least this much per metre
+_Z_NEAR_M = 0.01  # body outlines are clipped to this distance in front of the camera
+_BODY_HEADINGS = 12  # headings averaged for the expected body area (over 180 degrees)
+_EDGE_SAMPLES = 4  # points per rectangle edge before clipping
+
+
+@dataclass(frozen=True)
+class FloorFix:
+    """A geolocated floor point and its uncertainty."""
+
+    north_m: float
+    east_m: float
+    down_m: float
+    cov_ne_m2: Cov2
+    range_m: float  # camera centre to the floor point
+
+
+def _vehicle(pose: PoseSample) -> FloatArray:
+    return np.array([pose.north_m, pose.east_m, pose.down_m])
+
+
+def _floor_down(pose: PoseSample, params: GeolocationParams) -> float:
+    return pose.down_m + params.floor_down_m
+
+
+def _intersect(
+    centres: FloatArray, dirs: FloatArray, floor_down_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """Floor points (K, 3) and ranges (K,) of rays centres + t * dirs (unit dirs).
+
+    t = (floor - c_d) / d_d; rows that do not descend onto the floor get t = nan.
+    """
+    above = floor_down_m - centres[:, 2]
+    descends = (dirs[:, 2] > _MIN_DOWN_COMPONENT) & (above > 0.0)
+    t = np.where(descends, above / np.where(descends, dirs[:, 2], 1.0), np.nan)
+    return centres + t[:, None] * dirs, t
+
+
+def _rays(
+    camera: CameraModel, pose: PoseSample, pixels: FloatArray, attitudes: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Camera centres and unit NED rays for pixel rows paired with attitude rows."""
+    rays_cam = camera.rays_camera(pixels)
+    r_body_cam = camera.mount.r_body_from_camera
+    vehicle = _vehicle(pose)
+    centres = np.empty((len(pixels), 3))
+    dirs = np.empty((len(pixels), 3))
+    for k, (roll, pitch, yaw) in enumerate(attitudes):
+        r_ned_body = rotation_zyx(roll, pitch, yaw)
+        centres[k] = vehicle + r_ned_body @ camera.mount.position_body_m
+        dirs[k] = r_ned_body @ r_body_cam @ rays_cam[k]
+    return centres, dirs
+
+
+def _check_hit(
+    centre: FloatArray, direction: FloatArray, range_m: float, params: GeolocationParams
+) -> None:
+    if not math.isfinite(range_m):
+        if direction[2] <= _MIN_DOWN_COMPONENT:
+            elevation = math.degrees(math.asin(max(-1.0, min(1.0, -direction[2]))))
+            raise GeolocationRejected(
+                "ray does not hit the floor in front of the camera "
+                f"(it points {elevation:.1f} deg above the horizon)"
+            )
+        raise GeolocationRejected("the camera is at or below the floor plane")
+    if range_m > params.max_range_m:
+        raise GeolocationRejected(f"beyond max_range_m {params.max_range_m}: {range_m:.1f} m")
+    if range_m < params.min_range_m:
+        raise GeolocationRejected(f"nearer than min_range_m {params.min_range_m}: {range_m:.2f} m")
+
+
+def _perturbed(pose: PoseSample, u_px: float, v_px: float) -> tuple[FloatArray, FloatArray]:
+    """Rows: nominal, u+-h, v+-h, roll+-h, pitch+-h, yaw+-h (pixels, attitudes)."""
+    hp, ha = _PIXEL_STEP_PX, _ANGLE_STEP_RAD
+    pixel_steps = [(0, 0), (hp, 0), (-hp, 0), (0, hp), (0, -hp)] + [(0, 0)] * 6
+    pixels = np.array([(u_px + du, v_px + dv) for du, dv in pixel_steps])
+    att0 = np.array([pose.roll_rad, pose.pitch_rad, pose.yaw_rad])
+    attitudes = np.tile(att0, (11, 1))
+    for axis in range(3):
+        attitudes[5 + 2 * axis, axis] += ha
+        attitudes[6 + 2 * axis, axis] -= ha
+    return pixels, attitudes
+
+
+def _jacobians(
+    camera: CameraModel, pose: PoseSample, u_px: float, v_px: float, params: GeolocationParams
+) -> tuple[FloatArray, float, FloatArray, FloatArray]:
+    """The floor point, its range, d(n, e)/d(u, v) and d(n, e)/d(roll, pitch, yaw)."""
+    if not (math.isfinite(u_px) and math.isfinite(v_px)):
+        raise GeolocationRejected(f"pixel ({u_px!r}, {v_px!r}) is not finite")
+    pixels, attitudes = _perturbed(pose, u_px, v_px)
+    centres, dirs = _rays(camera, pose, pixels, attitudes)
+    points, ranges = _intersect(centres, dirs, _floor_down(pose, params))
+    _check_hit(centres[0], dirs[0], float(ranges[0]), params)
+    if not np.all(np.isfinite(ranges)):
+        raise GeolocationRejected("ray grazes the horizon: no usable covariance")
+    ne = points[:, :2]
+    # d p / d q ~= (p(q + h) - p(q - h)) / 2h, column per input.
+    j_px = np.column_stack([ne[1] - ne[2], ne[3] - ne[4]]) / (2.0 * _PIXEL_STEP_PX)
+    j_att = np.column_stack([ne[5] - ne[6], ne[7] - ne[8], ne[9] - ne[10]]) / (
+        2.0 * _ANGLE_STEP_RAD
+    )
+    return points[0], float(ranges[0]), j_px, j_att
+
+
+def geolocate(
+    camera: CameraModel, pose: PoseSample, u_px: float, v_px: float, params: GeolocationParams
+) -> FloorFix:
+    """The floor point seen at pixel (u_px, v_px) from ``pose``, with its covariance."""
+    point, range_m, j_px, j_att = _jacobians(camera, pose, u_px, v_px, params)
+    s_px2 = params.pixel_sigma_px**2
+    s_att2 = math.radians(params.attitude_sigma_deg) ** 2
+    # C = s_px^2 J_px J_px^T + s_att^2 J_att J_att^T + s_pos^2 I
+    cov = s_px2 * j_px @ j_px.T + s_att2 * j_att @ j_att.T
+    cov += params.position_sigma_m**2 * np.eye(2)
+    cov = 0.5 * (cov + cov.T)
+    if np.linalg.det(cov) <= 0.0:
+        raise GeolocationRejected("degenerate covariance (all noise sigmas are zero?)")
+    cov2: Cov2 = ((float(cov[0, 0]), float(cov[0, 1])), (float(cov[1, 0]), float(cov[1, 1])))
+    return FloorFix(float(point[0]), float(point[1]), float(point[2]), cov2, range_m)
+
+
+def ground_sample_distance_m(
+    camera: CameraModel, pose: PoseSample, u_px: float, v_px: float, params: GeolocationParams
+) -> float:
+    """Metres of floor per pixel at (u_px, v_px): geometric mean of the floor lengths
+    of one pixel step along u and one along v."""
+    _point, _range_m, j_px, _j_att = _jacobians(camera, pose, u_px, v_px, params)
+    return math.sqrt(float(np.linalg.norm(j_px[:, 0]) * np.linalg.norm(j_px[:, 1])))
+
+
+def _camera_frame(camera: CameraModel, pose: PoseSample, points_ned: FloatArray) -> FloatArray:
+    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    centre, r_ned_cam = camera.camera_pose_ned(_vehicle(pose), r_ned_body)
+    return (points_ned - centre) @ r_ned_cam  # rows of R^T (p - c)
+
+
+Plane = tuple[float, float, float]  # (a, b, c): the half-space a x + b y + c z >= 0
+
+
+def _clip(polygon: FloatArray, plane: Plane, offset: float = 0.0) -> FloatArray:
+    """Sutherland-Hodgman clip of a closed 3D polygon to a x + b y + c z >= offset."""
+    if len(polygon) == 0:
+        return polygon
+    f = polygon @ np.array(plane) - offset
+    out: list[FloatArray] = []
+    n = len(polygon)
+    for i in range(n):
+        j = (i + 1) % n
+        if f[i] >= 0.0:
+            out.append(polygon[i])
+        if (f[i] >= 0.0) != (f[j] >= 0.0):
+            s = f[i] / (f[i] - f[j])
+            out.append(polygon[i] + s * (polygon[j] - polygon[i]))
+    return np.array(out) if out else np.empty((0, 3))
+
+
+def _image_bounds(camera: CameraModel) -> tuple[float, float, float, float]:
+    """The image rectangle in normalized undistorted coordinates (x0, x1, y0, y1):
+    the median of each edge, undistorted (exact without distortion)."""
+    k = camera.intrinsics
+    lo_u, hi_u, lo_v, hi_v = -0.5, k.width_px - 0.5, -0.5, k.height_px - 0.5
+    along_u = np.linspace(lo_u, hi_u, 9)
+    along_v = np.linspace(lo_v, hi_v, 9)
+    edges = []
+    for pixels in (
+        np.column_stack([np.full(9, lo_u), along_v]),
+        np.column_stack([np.full(9, hi_u), along_v]),
+        np.column_stack([along_u, np.full(9, lo_v)]),
+        np.column_stack([along_u, np.full(9, hi_v)]),
+    ):
+        rays = camera.rays_camera(pixels)
+        edges.append(rays[:, :2] / rays[:, 2:3])
+    return (
+        float(np.median(edges[0][:, 0])),
+        float(np.median(edges[1][:, 0])),
+        float(np.median(edges[2][:, 1])),
+        float(np.median(edges[3][:, 1])),
+    )
+
+
+def _clip_to_view(
+    polygon: FloatArray, bounds: tuple[float, float, float, float] | None
+) -> FloatArray:
+    """Clip to z >= z_near and, given image bounds, to the view frustum
+    x0 z <= x <= x1 z, y0 z <= y <= y1 z."""
+    out = _clip(polygon, (0.0, 0.0, 1.0), _Z_NEAR_M)
+    if bounds is not None:
+        x0, x1, y0, y1 = bounds
+        for plane in ((1.0, 0.0, -x0), (-1.0, 0.0, x1), (0.0, 1.0, -y0), (0.0, -1.0, y1)):
+            out = _clip(out, plane)
+    return out
+
+
+def _shoelace(xy: FloatArray) -> float:
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def _body_outline(length_m: float, width_m: float, heading_rad: float) -> FloatArray:
+    """Rectangle outline (N, 2) in north/east offsets, edges subdivided."""
+    corners = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length_m / 2, width_m / 2]
+    s = np.linspace(0.0, 1.0, _EDGE_SAMPLES, endpoint=False)[:, None]
+    local = np.vstack(
+        [a + s * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True)]
+    )
+    c, sn = math.cos(heading_rad), math.sin(heading_rad)
+    return local @ np.array([[c, sn], [-sn, c]])  # rotate by heading (north towards east)
+
+
+def _distortion_area_scale(camera: CameraModel, xy: FloatArray) -> float:
+    """|det d(distorted)/d(undistorted)| at normalized point xy: local area scale."""
+    h = 1e-6
+    steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    pts = xy[None, :] + steps
+    d = camera.distort_normalized(pts)
+    jac = np.column_stack([d[0] - d[1], d[2] - d[3]]) / (2.0 * h)
+    return abs(float(np.linalg.det(jac)))
+
+
+def expected_body_area_px(
+    camera: CameraModel,
+    pose: PoseSample,
+    north_m: float,
+    east_m: float,
+    params: GeolocationParams,
+    clip_to_image: bool = True,
+) -> float:
+    """Image area (px^2) a whole, unburied lying adult centred on this floor point covers.
+
+    The body is a body_length_m x body_width_m rectangle on the floor; its heading is
+    unknown, so the area is the mean over headings spread across 180 degrees. With
+    ``clip_to_image`` (the default) the outline is clipped to the image, so the area
+    is what the frame could show of that body: near the camera a body is larger than
+    the frame, and a visibility of mask area / this value then measures burial, not
+    framing. Without it, only the part behind the camera is clipped away. The pinhole
+    area is scaled by the lens distortion's local area factor at the centre.
+    Raises GeolocationRejected when the point is not in front of the camera.
+    """
+    floor = _floor_down(pose, params)
+    centre_cam = _camera_frame(camera, pose, np.array([[north_m, east_m, floor]]))[0]
+    if centre_cam[2] <= _Z_NEAR_M:
+        raise GeolocationRejected(
+            f"floor point ({north_m:.2f}, {east_m:.2f}) is not in front of the camera"
+        )
+    k = camera.intrinsics
+    bounds = _image_bounds(camera) if clip_to_image else None
+    areas = []
+    for i in range(_BODY_HEADINGS):
+        heading_rad = math.pi * i / _BODY_HEADINGS
+        outline = _body_outline(params.body_length_m, params.body_width_m, heading_rad)
+        ned = np.column_stack([outline + np.array([north_m, east_m]), np.full(len(outline), floor)])
+        clipped = _clip_to_view(_camera_frame(camera, pose, ned), bounds)
+        if len(clipped) < 3:
+            areas.append(0.0)
+            continue
+        areas.append(_shoelace(clipped[:, :2] / clipped[:, 2:3]) * k.fx_px * k.fy_px)
+    scale = _distortion_area_scale(camera, centre_cam[:2] / centre_cam[2])
+    return float(np.mean(areas)) * scale
+
+
+def in_view(
+    camera: CameraModel,
+    pose: PoseSample,
+    north_m: float,
+    east_m: float,
+    params: GeolocationParams,
+    margin_px: float = 10.0,
+) -> bool:
+    """Whether a floor point shows in the image at least ``margin_px`` from its edges,
+    in front of the camera, within [min_range_m, max_range_m]."""
+    floor = _floor_down(pose, params)
+    point = np.array([[north_m, east_m, floor]])
+    cam = _camera_frame(camera, pose, point)[0]
+    if cam[2] <= _Z_NEAR_M:
+        return False
+    range_m = float(np.linalg.norm(cam))
+    if not params.min_range_m <= range_m <= params.max_range_m:
+        return False
+    u, v = camera.project_camera(cam[None, :])[0]
+    k = camera.intrinsics
+    return bool(
+        margin_px - 0.5 <= u <= k.width_px - 0.5 - margin_px
+        and margin_px - 0.5 <= v <= k.height_px - 0.5 - margin_px
+    )
