@@ -1,0 +1,90 @@
+"""A folder of recorded frames named ``<unix_time_microseconds>.jpg|png`` (replay).
+
+Frames are read in time order, as fast as asked. ``t_unix_s`` comes from the name;
+``t_mono_s`` maps it onto this process's monotonic clock with the offset between
+the two clocks sampled when the folder is opened, so a recording replays on the
+same time axis as the pose log recorded with it. Files with other names are
+ignored (counted and logged once); an unreadable image is skipped with a warning.
+``write_frame`` saves a frame under the same naming scheme.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from pathlib import Path
+
+import cv2
+
+from companion.sources.base import CameraError, EndOfStream, Frame, mono_minus_unix_s
+
+log = logging.getLogger(__name__)
+
+_NAME = re.compile(r"^(\d{1,20})\.(jpe?g|png)$", re.IGNORECASE)
+
+
+def frame_filename(t_unix_s: float, ext: str = "jpg") -> str:
+    """The file name a frame captured at ``t_unix_s`` is stored under."""
+    return f"{round(t_unix_s * 1e6):d}.{ext}"
+
+
+def write_frame(folder: Path, frame: Frame, ext: str = "jpg", jpeg_quality: int = 90) -> Path:
+    """Save a frame for replay; returns the path. Raises CameraError if it cannot."""
+    path = folder / frame_filename(frame.t_unix_s, ext)
+    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if ext.lower() in ("jpg", "jpeg") else []
+    try:
+        ok = cv2.imwrite(str(path), frame.image, params)
+    except cv2.error as exc:
+        raise CameraError(f"cannot write {path}: {exc}") from None
+    if not ok:
+        raise CameraError(f"cannot write {path}")
+    return path
+
+
+class FramesDirSource:
+    """Replays a folder of time-stamped frames; EndOfStream after the last."""
+
+    def __init__(self, folder: Path) -> None:
+        self.name = f"frames:{folder}"
+        if not folder.is_dir():
+            raise CameraError(f"{self.name}: no such folder")
+        entries: list[tuple[int, Path]] = []
+        ignored = 0
+        for path in folder.iterdir():
+            match = _NAME.match(path.name)
+            if match and path.is_file():
+                entries.append((int(match.group(1)), path))
+            else:
+                ignored += 1
+        if ignored:
+            log.info("%s: ignored %d files not named <unix_us>.jpg|png", self.name, ignored)
+        if not entries:
+            raise CameraError(f"{self.name}: holds no frames named <unix_time_us>.jpg|png")
+        entries.sort()
+        self._entries = entries
+        self._offset_s = mono_minus_unix_s()
+        self._pos = 0
+        self.frames_skipped = 0
+        self._closed = False
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def read(self, timeout_s: float) -> Frame:
+        if self._closed:
+            raise CameraError(f"{self.name}: closed")
+        while self._pos < len(self._entries):
+            t_us, path = self._entries[self._pos]
+            index = self._pos
+            self._pos += 1
+            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            if image is None:
+                self.frames_skipped += 1
+                log.warning("%s: %s is not a readable image; skipped", self.name, path.name)
+                continue
+            t_unix_s = t_us / 1e6
+            return Frame(image, t_unix_s + self._offset_s, t_unix_s, index)
+        raise EndOfStream(f"{self.name}: end after {len(self._entries)} frames")
+
+    def close(self) -> None:
+        self._closed = True
