@@ -5,7 +5,9 @@ MavlinkIOError
 ├── LinkError           a link cannot be opened or used
 │   └── LinkSpecError   a link URL is malformed
 ├── SigningError        a signing key is missing, unreadable or too open
-└── TlogError           a telemetry log cannot be written or read
+├── TlogError           a telemetry log cannot be written or read
+├── ClockNotSynced      the autopilot clock offset is not known yet
+└── LinkTimeout         a wait on the vehicle link timed out
 """
 
 from __future__ import annotations
@@ -33,3 +35,11 @@ class SigningError(MavlinkIOError):
 
 class TlogError(MavlinkIOError):
     """A telemetry log cannot be written or read."""
+
+
+class ClockNotSynced(MavlinkIOError):
+    """The autopilot clock offset is not known yet (no timestamped message received)."""
+
+
+class LinkTimeout(MavlinkIOError):
+    """A wait on the vehicle link (heartbeat, acknowledgement) timed out."""
