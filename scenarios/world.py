@@ -1,0 +1,317 @@
+"""A simulated collapsed-warehouse floor: debris, light, and victims lying on it.
+
+Coordinates are the local NED frame of the rover's EKF origin: the floor spans
+``0 <= north_m <= size_m[0]`` and ``0 <= east_m <= size_m[1]`` at ``down_m = 0``;
+north runs along the long side. Everything lies flat on the floor.
+
+Each victim's ``visibility_pct`` is ground truth: the body silhouette
+(scenarios.body) and every debris polygon are rasterised top-down at 2.5 mm and the
+uncovered body pixels counted. It is computed when the World is built, so a World
+always carries the truth for its own debris. The urgency class follows from it
+(fusion.types.Urgency.from_visibility).
+
+Worlds are stored as TOML (``load_world`` / ``save_world``); the seven scenarios of
+the first prototype ship as presets (``preset(name)``, ``PRESETS``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from fusion.types import GlobalOrigin, Urgency
+from scenarios.body import Part, body_parts
+
+RGB = tuple[int, int, int]
+PointNE = tuple[float, float]
+
+VISIBILITY_RES_M = 0.0025  # raster cell of the ground-truth visibility
+PRESETS: tuple[str, ...] = (
+    "empty",
+    "light",
+    "medium",
+    "critical",
+    "dark",
+    "mixed",
+    "skin_debris",
+)
+DEFAULT_ORIGIN = GlobalOrigin(lat_deg=40.071, lon_deg=-105.2296, alt_m=1580.0)
+
+
+class WorldError(ValueError):
+    """A world file or world description cannot be used; the message names the key."""
+
+
+def rgb_from_hex(text: str, where: str = "colour") -> RGB:
+    """'#rrggbb' -> (r, g, b)."""
+    t = text.strip()
+    if len(t) != 7 or t[0] != "#":
+        raise WorldError(f"{where} = {text!r}: expected a colour like '#a0b1c2'")
+    try:
+        return (int(t[1:3], 16), int(t[3:5], 16), int(t[5:7], 16))
+    except ValueError:
+        raise WorldError(f"{where} = {text!r}: expected a colour like '#a0b1c2'") from None
+
+
+def hex_from_rgb(rgb: RGB) -> str:
+    return "#{:02x}{:02x}{:02x}".format(*rgb)
+
+
+def _check_rgb(rgb: RGB, where: str) -> None:
+    if len(rgb) != 3 or not all(isinstance(c, int) and 0 <= c <= 255 for c in rgb):
+        raise WorldError(f"{where} = {rgb!r}: expected three integers 0..255")
+
+
+@dataclass(frozen=True)
+class Floor:
+    colour_rgb: RGB = (125, 120, 112)  # dusty concrete
+    texture_contrast: float = 0.18  # relative amplitude of stains and grain
+    ambient_light: float = 1.0  # light outside every light zone, 0..1
+
+    def __post_init__(self) -> None:
+        _check_rgb(self.colour_rgb, "floor.colour")
+        if not 0.0 <= self.texture_contrast <= 1.0:
+            raise WorldError(f"floor.texture_contrast = {self.texture_contrast}: must be in [0, 1]")
+        if not 0.0 < self.ambient_light <= 1.0:
+            raise WorldError(f"floor.ambient_light = {self.ambient_light}: must be in (0, 1]")
+
+
+@dataclass(frozen=True)
+class Debris:
+    """A flat piece of rubble; later pieces lie over earlier ones and over victims."""
+
+    kind: str  # slab | piece | plank | beam | sheet | lookalike_skin | lookalike_cloth
+    colour_rgb: RGB
+    polygon_ne_m: tuple[PointNE, ...]
+
+    def __post_init__(self) -> None:
+        _check_rgb(self.colour_rgb, f"debris ({self.kind}).colour")
+        if len(self.polygon_ne_m) < 3:
+            raise WorldError(f"debris ({self.kind}).polygon_ne_m needs at least 3 points")
+        if not all(math.isfinite(v) for p in self.polygon_ne_m for v in p):
+            raise WorldError(f"debris ({self.kind}).polygon_ne_m must be finite numbers")
+
+    @classmethod
+    def box(
+        cls,
+        kind: str,
+        colour_rgb: RGB,
+        north_m: float,
+        east_m: float,
+        length_m: float,
+        width_m: float,
+        heading_rad: float,
+    ) -> Debris:
+        """A rectangle centred at (north, east), its length along heading_rad."""
+        c, s = math.cos(heading_rad), math.sin(heading_rad)
+        pts = []
+        for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+            x, y = a * length_m / 2, b * width_m / 2
+            pts.append((round(north_m + c * x - s * y, 4), round(east_m + s * x + c * y, 4)))
+        return cls(kind, colour_rgb, tuple(pts))
+
+    @property
+    def polygon(self) -> np.ndarray:
+        return np.asarray(self.polygon_ne_m, dtype=float)
+
+
+@dataclass(frozen=True)
+class LightZone:
+    """A darker (or lit) disc: light is the fraction of full light at its centre."""
+
+    north_m: float
+    east_m: float
+    radius_m: float
+    light: float  # 0.05 .. 1
+    edge_m: float = 0.5  # width of the smooth transition at the rim
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.light <= 1.0:
+            raise WorldError(f"light_zones.light = {self.light}: must be in (0, 1]")
+        if self.radius_m <= 0 or self.edge_m < 0:
+            raise WorldError("light_zones: radius_m must be > 0 and edge_m >= 0")
+
+
+@dataclass(frozen=True)
+class Victim:
+    """A person lying on the floor. ``visibility_pct`` is filled in by World."""
+
+    victim_id: int
+    north_m: float
+    east_m: float
+    heading_rad: float
+    height_m: float
+    skin_rgb: RGB
+    top_rgb: RGB
+    trousers_rgb: RGB
+    shoes_rgb: RGB = (40, 36, 34)
+    left_arm_rad: float = 0.15
+    right_arm_rad: float = 0.15
+    leg_spread_rad: float = 0.05
+    visibility_pct: float = math.nan  # ground truth, computed by World
+    visible_north_m: float = math.nan  # centroid of the uncovered body
+    visible_east_m: float = math.nan
+
+    def __post_init__(self) -> None:
+        where = f"victims[{self.victim_id}]"
+        if self.victim_id < 1:
+            raise WorldError(f"{where}.victim_id must be >= 1")
+        if not 1.0 <= self.height_m <= 2.2:
+            raise WorldError(f"{where}.height_m = {self.height_m}: must be in [1.0, 2.2]")
+        for name in ("skin_rgb", "top_rgb", "trousers_rgb", "shoes_rgb"):
+            _check_rgb(getattr(self, name), f"{where}.{name.removesuffix('_rgb')}")
+
+    @property
+    def urgency(self) -> Urgency:
+        if math.isnan(self.visibility_pct):
+            raise WorldError(f"victim {self.victim_id}: visibility not computed (not in a World)")
+        return Urgency.from_visibility(self.visibility_pct)
+
+    def parts(self) -> list[Part]:
+        return body_parts(
+            self.north_m,
+            self.east_m,
+            self.heading_rad,
+            self.height_m,
+            self.left_arm_rad,
+            self.right_arm_rad,
+            self.leg_spread_rad,
+        )
+
+    def colour_of(self, role: str) -> RGB:
+        colours: dict[str, RGB] = {
+            "skin": self.skin_rgb,
+            "top": self.top_rgb,
+            "trousers": self.trousers_rgb,
+            "shoes": self.shoes_rgb,
+        }
+        return colours[role]
+
+
+def _fill(mask: np.ndarray, poly_ne: np.ndarray, n0: float, e0: float, res: float) -> None:
+    """Fill a polygon into a mask whose rows are north and columns east (cell centres)."""
+    pts = np.column_stack([(poly_ne[:, 1] - e0) / res - 0.5, (poly_ne[:, 0] - n0) / res - 0.5])
+    shift = 4  # sub-pixel vertices: 1/16 cell
+    cv2.fillPoly(mask, [np.round(pts * (1 << shift)).astype(np.int32)], 1, cv2.LINE_8, shift)
+
+
+def compute_visibility(
+    victim: Victim, debris: tuple[Debris, ...], res_m: float = VISIBILITY_RES_M
+) -> tuple[float, float, float]:
+    """(visibility_pct, visible centroid north, east) from a top-down raster."""
+    parts = victim.parts()
+    allpts = np.vstack([p.polygon_ne_m for p in parts])
+    n0, e0 = allpts.min(axis=0) - 0.05
+    n1, e1 = allpts.max(axis=0) + 0.05
+    rows, cols = math.ceil((n1 - n0) / res_m), math.ceil((e1 - e0) / res_m)
+    body = np.zeros((rows, cols), np.uint8)
+    for p in parts:
+        _fill(body, p.polygon_ne_m, n0, e0, res_m)
+    cover = np.zeros_like(body)
+    for d in debris:
+        poly = d.polygon
+        if (poly[:, 0].max() < n0 or poly[:, 0].min() > n1) or (
+            poly[:, 1].max() < e0 or poly[:, 1].min() > e1
+        ):
+            continue
+        _fill(cover, poly, n0, e0, res_m)
+    visible = (body == 1) & (cover == 0)
+    total = int(body.sum())
+    seen = int(visible.sum())
+    pct = 100.0 * seen / total
+    if seen == 0:
+        return 0.0, victim.north_m, victim.east_m
+    r, c = np.nonzero(visible)
+    return pct, float(n0 + (r.mean() + 0.5) * res_m), float(e0 + (c.mean() + 0.5) * res_m)
+
+
+@dataclass(frozen=True)
+class World:
+    size_m: tuple[float, float] = (12.0, 8.0)  # (north extent, east extent)
+    floor: Floor = field(default_factory=Floor)
+    debris: tuple[Debris, ...] = ()
+    light_zones: tuple[LightZone, ...] = ()
+    victims: tuple[Victim, ...] = ()
+    origin: GlobalOrigin = DEFAULT_ORIGIN
+    seed: int = 0
+    name: str = ""
+    route_ne_m: tuple[PointNE, ...] = ()  # empty: the default lawnmower
+    start_ne_m: PointNE = (0.6, 0.6)
+    start_heading_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        n, e = self.size_m
+        if not (0 < n <= 200 and 0 < e <= 200):
+            raise WorldError(f"size_m = {list(self.size_m)}: both extents must be in (0, 200]")
+        ids = [v.victim_id for v in self.victims]
+        if len(set(ids)) != len(ids):
+            raise WorldError(f"victims: duplicate victim_id in {ids}")
+        for v in self.victims:
+            if not (0 <= v.north_m <= n and 0 <= v.east_m <= e):
+                raise WorldError(
+                    f"victims[{v.victim_id}] at ({v.north_m}, {v.east_m}) is off the floor"
+                )
+        done = []
+        for v in self.victims:
+            pct, vn, ve = compute_visibility(v, self.debris)
+            done.append(
+                dataclasses.replace(v, visibility_pct=pct, visible_north_m=vn, visible_east_m=ve)
+            )
+        object.__setattr__(self, "victims", tuple(done))
+
+    def light_at(self, north_m: np.ndarray, east_m: np.ndarray) -> np.ndarray:
+        """Fraction of full light at floor points (the darkest zone wins)."""
+        light = np.full(np.broadcast(north_m, east_m).shape, self.floor.ambient_light, float)
+        for z in self.light_zones:
+            d = np.hypot(north_m - z.north_m, east_m - z.east_m)
+            if z.edge_m > 0:
+                w = np.clip((z.radius_m + z.edge_m / 2 - d) / z.edge_m, 0.0, 1.0)
+            else:
+                w = (d <= z.radius_m).astype(float)
+            w = w * w * (3 - 2 * w)  # smoothstep
+            zone = self.floor.ambient_light + (z.light - self.floor.ambient_light) * w
+            light = np.minimum(light, zone)
+        return light
+
+    def victim(self, victim_id: int) -> Victim:
+        for v in self.victims:
+            if v.victim_id == victim_id:
+                return v
+        raise KeyError(victim_id)
+
+
+def preset(name: str) -> World:
+    """One of the seven scenarios of the first prototype (see PRESETS)."""
+    if name not in PRESETS:
+        raise WorldError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
+    from scenarios.worldfile import load_world_text
+
+    # Package data sits beside this module in both normal and editable installs.
+    path = Path(__file__).resolve().parent / "presets" / f"{name}.toml"
+    return load_world_text(path.read_text(encoding="utf-8"), f"preset {name}")
+
+
+def load_world(path: Path) -> World:
+    """Load a world file; WorldError names the file and the bad key."""
+    from scenarios.worldfile import load_world as _load
+
+    return _load(path)
+
+
+def save_world(world: World, path: Path) -> None:
+    from scenarios.worldfile import save_world as _save
+
+    _save(world, path)
+
+
+def generate_world(seed: int) -> World:
+    """A random mixed world: 3-6 victims of all classes, look-alike debris, dark zones."""
+    from scenarios.generate import generate
+
+    world: World = generate(seed)
+    return world
