@@ -1,0 +1,462 @@
+"""World-frame victim tracker: one filterpy Kalman filter per victim.
+
+Each track estimates a static floor point x = [north, east] with
+
+    F = I                      the victim does not move...
+    Q = q dt I                 ...but a random walk of q m^2/s lets a wrong early fix move
+    H = I                      observations are floor points
+    R = observation covariance from geolocation
+
+Per ``update`` (one processed camera frame, with or without detections):
+
+1. predict every track to ``now_unix_s``;
+2. gate each (track, observation) pair by the Mahalanobis distance
+   d^2 = y^T S^-1 y, S = P + R, against ``gate_chi2``; assign with the Hungarian
+   method over the gated pairs, cost d^2 + ln det S (the negative log-likelihood,
+   so a broad track does not steal a detection from a sharp one);
+3. matched tracks are updated and gain ``hit_log_odds``; observations matched to,
+   or inside the gate of, a RESCUED or FALSE_ALARM track are absorbed by it; other
+   unmatched observations start tentative tracks;
+4. tentative tracks in view (``in_view(north, east)``) but not detected gain
+   ``miss_log_odds``; they are confirmed at ``confirm_log_odds`` and die below
+   ``delete_log_odds`` or when unseen for ``tentative_timeout_s``;
+5. confirmed victims are never deleted; unseen for ``not_seen_recently_s`` they
+   become NOT_SEEN_RECENTLY, and CONFIRMED again when seen;
+6. two confirmed victims whose difference is within ``merge_chi2`` merge: the older
+   ID survives with the fused estimate, the younger becomes MERGED.
+
+Identity: every track has a ``track_id``; a victim ID (``victim_id``) is given only
+on confirmation, from this instance's counter starting at ``first_id``, so the HQ
+sees victims 1, 2, 3 rather than the numbers of clutter that never confirmed.
+Neither number is ever reused. Tentative tracks show ``victim_id == 0``.
+
+The caller must call ``update`` for every processed frame, also when it holds no
+detections: that is where the negative evidence comes from.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from scipy.optimize import linear_sum_assignment
+
+from fusion import registry as codec
+from fusion.camera import FloatArray
+from fusion.params import TrackerParams
+from fusion.registry import EventKind, TrackEvent, Victim, moved_beyond
+from fusion.types import Cov2, Observation, TrackState, Urgency
+from fusion.urgency import classify, weighted_median
+
+__all__ = ["EventKind", "TrackEvent", "Victim", "VictimTracker", "moved_beyond"]
+
+log = logging.getLogger(__name__)
+
+_ABSORBING = (TrackState.RESCUED, TrackState.FALSE_ALARM)
+_CONFIRMED = (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
+_OPERATOR_STATES = (TrackState.RESCUED, TrackState.FALSE_ALARM, TrackState.CONFIRMED)
+_INFEASIBLE = 1e12  # cost of a pair outside the gate
+
+
+@dataclass(eq=False)
+class _Track:
+    track_id: int
+    kf: KalmanFilter
+    state: TrackState
+    log_odds: float
+    observations: int
+    first_seen_unix_s: float
+    last_seen_unix_s: float
+    t_filter_unix_s: float  # the time the filter's x, P refer to
+    history: deque[tuple[float, float, float]]  # (t_unix_s, visibility_pct, quality)
+    urgency: Urgency
+    visibility_pct: float
+    victim_id: int = 0  # 0 until confirmed
+    merged_into: int | None = None
+    matched: bool = field(default=False, repr=False)  # in the current update
+
+    @property
+    def x(self) -> FloatArray:
+        return self.kf.x.reshape(2)
+
+
+def _new_filter(x: FloatArray, p: FloatArray) -> KalmanFilter:
+    kf = KalmanFilter(dim_x=2, dim_z=2)
+    kf.x = np.array(x, dtype=float).reshape(2, 1)
+    kf.P = np.array(p, dtype=float)
+    kf.F = np.eye(2)  # static target
+    kf.H = np.eye(2)  # we observe the position itself
+    kf.Q = np.zeros((2, 2))  # set from dt at every predict
+    return kf
+
+
+def _cov2(p: FloatArray) -> Cov2:
+    s = 0.5 * (p + p.T)
+    return ((float(s[0, 0]), float(s[0, 1])), (float(s[0, 1]), float(s[1, 1])))
+
+
+class VictimTracker:
+    """Tracks victims on the floor of the local NED frame. Not thread-safe: one
+    processing thread owns it."""
+
+    def __init__(self, params: TrackerParams, first_id: int = 1) -> None:
+        if first_id < 1:
+            raise ValueError(f"first_id must be >= 1, got {first_id}")
+        self._params = params
+        self._next_victim_id = first_id
+        self._next_track_id = 1
+        self._tracks: dict[int, _Track] = {}  # by track_id, in creation order
+        self._by_victim: dict[int, _Track] = {}
+
+    # -- queries -----------------------------------------------------------------
+
+    def victims(self, include_tentative: bool = False) -> list[Victim]:
+        """Snapshots of all victims (every state but tentative, unless asked)."""
+        return [
+            self._victim(t)
+            for t in self._tracks.values()
+            if include_tentative or t.state != TrackState.TENTATIVE
+        ]
+
+    def victim(self, victim_id: int) -> Victim:
+        """The snapshot of one victim; KeyError when unknown."""
+        return self._victim(self._lookup(victim_id))
+
+    def resolve(self, victim_id: int) -> int:
+        """The surviving victim ID for an ID that may have been merged away."""
+        track = self._lookup(victim_id)
+        while track.merged_into is not None:
+            track = self._by_victim[track.merged_into]
+        return track.victim_id
+
+    def _lookup(self, victim_id: int) -> _Track:
+        try:
+            return self._by_victim[victim_id]
+        except KeyError:
+            known = ", ".join(str(v) for v in self._by_victim) or "none"
+            raise KeyError(f"no victim with id {victim_id} (known ids: {known})") from None
+
+    def _victim(self, t: _Track) -> Victim:
+        x = t.x
+        return Victim(
+            victim_id=t.victim_id,
+            state=t.state,
+            urgency=t.urgency,
+            visibility_pct=t.visibility_pct,
+            north_m=float(x[0]),
+            east_m=float(x[1]),
+            cov_ne_m2=_cov2(t.kf.P),
+            observations=t.observations,
+            first_seen_unix_s=t.first_seen_unix_s,
+            last_seen_unix_s=t.last_seen_unix_s,
+            log_odds=t.log_odds,
+            merged_into=t.merged_into,
+            track_id=t.track_id,
+        )
+
+    # -- the update cycle --------------------------------------------------------
+
+    def update(
+        self,
+        observations: Sequence[Observation],
+        now_unix_s: float,
+        in_view: Callable[[float, float], bool],
+    ) -> list[TrackEvent]:
+        """Fuse one frame's observations (possibly none) taken at ``now_unix_s``."""
+        if not math.isfinite(now_unix_s):
+            raise ValueError(f"now_unix_s must be finite, got {now_unix_s!r}")
+        events: list[TrackEvent] = []
+        live = [t for t in self._tracks.values() if t.state != TrackState.MERGED]
+        for t in live:
+            t.matched = False
+        self._predict(live, now_unix_s)
+        pairs, gated = self._associate(live, observations)
+        for i, j in pairs:
+            self._hit(live[i], observations[j], events)
+        paired_obs = {j for _, j in pairs}
+        absorbing = np.array([t.state in _ABSORBING for t in live], dtype=bool)
+        for j, obs in enumerate(observations):
+            if j in paired_obs:
+                continue
+            if len(live) and bool(np.any(gated[:, j] & absorbing)):
+                log.debug("observation at (%.2f, %.2f) absorbed", obs.north_m, obs.east_m)
+                continue
+            self._start(obs, now_unix_s)
+        self._negative_evidence(live, in_view)
+        self._life_cycle(live, now_unix_s, events)
+        self._merge(events)
+        return events
+
+    def _predict(self, live: list[_Track], now_unix_s: float) -> None:
+        q = self._params.process_noise_m2_s
+        for t in live:
+            dt = now_unix_s - t.t_filter_unix_s
+            if dt <= 0.0:
+                continue  # wall clock stepped back, or same frame: nothing to predict
+            # x = F x ; P = F P F^T + Q,  Q = q dt I
+            t.kf.predict(Q=np.eye(2) * (q * dt))
+            t.t_filter_unix_s = now_unix_s
+
+    def _associate(
+        self, live: list[_Track], observations: Sequence[Observation]
+    ) -> tuple[list[tuple[int, int]], np.ndarray]:
+        """Gated Hungarian assignment; returns (track index, obs index) pairs and the
+        gate matrix."""
+        n_t, n_o = len(live), len(observations)
+        if n_t == 0 or n_o == 0:
+            return [], np.zeros((n_t, n_o), dtype=bool)
+        x = np.array([t.x for t in live])  # (T, 2)
+        p = np.array([t.kf.P for t in live])  # (T, 2, 2)
+        z = np.array([(o.north_m, o.east_m) for o in observations])  # (O, 2)
+        r = np.array([o.cov_ne_m2 for o in observations])  # (O, 2, 2)
+        # S = P + R for every pair; y = z - x
+        s = p[:, None, :, :] + r[None, :, :, :]
+        y = z[None, :, :] - x[:, None, :]
+        det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
+        # d^2 = y^T S^-1 y with the 2x2 inverse written out
+        d2 = (
+            s[..., 1, 1] * y[..., 0] ** 2
+            - (s[..., 0, 1] + s[..., 1, 0]) * y[..., 0] * y[..., 1]
+            + s[..., 0, 0] * y[..., 1] ** 2
+        ) / det
+        gated = d2 <= self._params.gate_chi2
+        cost = np.where(gated, d2 + np.log(det), _INFEASIBLE)
+        return _assign(gated, cost), gated
+
+    def _hit(self, t: _Track, obs: Observation, events: list[TrackEvent]) -> None:
+        t.matched = True
+        # x = x + K (z - x), P = (I - K) P (I - K)^T + K R K^T, K = P (P + R)^-1
+        t.kf.update(np.array([obs.north_m, obs.east_m]), R=np.array(obs.cov_ne_m2))
+        t.observations += 1
+        t.first_seen_unix_s = min(t.first_seen_unix_s, obs.t_unix_s)
+        t.last_seen_unix_s = max(t.last_seen_unix_s, obs.t_unix_s)
+        if t.state in _ABSORBING:
+            return  # the operator has decided: no support, urgency or events
+        p = self._params
+        t.log_odds = min(p.max_log_odds, t.log_odds + p.hit_log_odds)
+        if t.state == TrackState.NOT_SEEN_RECENTLY:
+            t.state = TrackState.CONFIRMED
+            events.append(TrackEvent(EventKind.SEEN_AGAIN, self._victim(t)))
+        t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
+        if self._reclassify(t) and t.state == TrackState.CONFIRMED:
+            events.append(TrackEvent(EventKind.URGENCY_CHANGED, self._victim(t)))
+
+    def _reclassify(self, t: _Track) -> bool:
+        """Refresh the visibility estimate and the class; True if the class changed."""
+        t.visibility_pct = weighted_median([h[1] for h in t.history], [h[2] for h in t.history])
+        urgency = classify(t.urgency, t.visibility_pct, self._params.urgency_hysteresis_pct)
+        changed = urgency != t.urgency
+        t.urgency = urgency
+        return changed
+
+    def _start(self, obs: Observation, now_unix_s: float) -> None:
+        t = _Track(
+            track_id=self._next_track_id,
+            kf=_new_filter(np.array([obs.north_m, obs.east_m]), np.array(obs.cov_ne_m2)),
+            state=TrackState.TENTATIVE,
+            log_odds=self._params.hit_log_odds,
+            observations=1,
+            first_seen_unix_s=obs.t_unix_s,
+            last_seen_unix_s=obs.t_unix_s,
+            t_filter_unix_s=now_unix_s,
+            history=deque(
+                [(obs.t_unix_s, obs.visibility_pct, obs.quality)],
+                maxlen=self._params.urgency_window,
+            ),
+            urgency=Urgency.from_visibility(obs.visibility_pct),
+            visibility_pct=obs.visibility_pct,
+            matched=True,
+        )
+        self._next_track_id += 1
+        self._tracks[t.track_id] = t
+
+    def _negative_evidence(
+        self, live: list[_Track], in_view: Callable[[float, float], bool]
+    ) -> None:
+        miss = self._params.miss_log_odds
+        for t in live:
+            if t.state == TrackState.TENTATIVE and not t.matched:
+                x = t.x
+                if in_view(float(x[0]), float(x[1])):
+                    t.log_odds += miss
+
+    def _life_cycle(self, live: list[_Track], now_unix_s: float, events: list[TrackEvent]) -> None:
+        p = self._params
+        for t in live:
+            if t.state == TrackState.TENTATIVE:
+                if t.log_odds >= p.confirm_log_odds:
+                    self._confirm(t, events)
+                elif (
+                    t.log_odds < p.delete_log_odds
+                    or now_unix_s - t.last_seen_unix_s > p.tentative_timeout_s
+                ):
+                    del self._tracks[t.track_id]
+            elif (
+                t.state == TrackState.CONFIRMED
+                and now_unix_s - t.last_seen_unix_s > p.not_seen_recently_s
+            ):
+                t.state = TrackState.NOT_SEEN_RECENTLY
+                events.append(TrackEvent(EventKind.NOT_SEEN_RECENTLY, self._victim(t)))
+
+    def _confirm(self, t: _Track, events: list[TrackEvent]) -> None:
+        t.state = TrackState.CONFIRMED
+        t.victim_id = self._next_victim_id
+        self._next_victim_id += 1
+        self._by_victim[t.victim_id] = t
+        log.info("victim %d confirmed at (%.2f, %.2f)", t.victim_id, *t.x)
+        events.append(TrackEvent(EventKind.CONFIRMED, self._victim(t)))
+
+    # -- merging -------------------------------------------------------------------
+
+    def _merge(self, events: list[TrackEvent]) -> None:
+        while True:
+            confirmed = [t for t in self._tracks.values() if t.state in _CONFIRMED]
+            pair = _closest_pair(confirmed, self._params.merge_chi2)
+            if pair is None:
+                return
+            a, b = pair
+            older, younger = (a, b) if a.victim_id < b.victim_id else (b, a)
+            self._fuse(older, younger, events)
+
+    def _fuse(self, older: _Track, younger: _Track, events: list[TrackEvent]) -> None:
+        # Independent estimates of one point, fused in information form:
+        # P = (P1^-1 + P2^-1)^-1, x = P (P1^-1 x1 + P2^-1 x2)
+        i1, i2 = np.linalg.inv(older.kf.P), np.linalg.inv(younger.kf.P)
+        p = np.linalg.inv(i1 + i2)
+        x = p @ (i1 @ older.x + i2 @ younger.x)
+        older.kf.x = x.reshape(2, 1)
+        older.kf.P = 0.5 * (p + p.T)
+        older.observations += younger.observations
+        older.first_seen_unix_s = min(older.first_seen_unix_s, younger.first_seen_unix_s)
+        older.last_seen_unix_s = max(older.last_seen_unix_s, younger.last_seen_unix_s)
+        older.log_odds = max(older.log_odds, younger.log_odds)
+        if younger.state == TrackState.CONFIRMED:
+            older.state = TrackState.CONFIRMED
+        merged = sorted([*older.history, *younger.history])
+        older.history = deque(merged, maxlen=self._params.urgency_window)
+        younger.state = TrackState.MERGED
+        younger.merged_into = older.victim_id
+        log.info("victim %d merged into %d", younger.victim_id, older.victim_id)
+        events.append(TrackEvent(EventKind.MERGED, self._victim(younger)))
+        if self._reclassify(older):
+            events.append(TrackEvent(EventKind.URGENCY_CHANGED, self._victim(older)))
+
+    # -- operator ------------------------------------------------------------------
+
+    def mark(self, victim_id: int, state: TrackState, now_unix_s: float) -> TrackEvent:
+        """Apply an operator's decision: RESCUED, FALSE_ALARM, or CONFIRMED to reopen.
+
+        A merged ID is applied to the victim it was merged into. Unknown ID: KeyError.
+        """
+        if state not in _OPERATOR_STATES:
+            names = ", ".join(s.name for s in _OPERATOR_STATES)
+            raise ValueError(f"operator can mark a victim {names}, not {state.name}")
+        track = self._by_victim[self.resolve(victim_id)]
+        log.info("operator marked victim %d %s at %.3f", track.victim_id, state.name, now_unix_s)
+        track.state = state
+        return TrackEvent(EventKind.OPERATOR, self._victim(track))
+
+    # -- persistence ---------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        """The whole registry as JSON-serialisable data (format in fusion.registry)."""
+        return codec.encode(
+            self._next_victim_id,
+            self._next_track_id,
+            [_record(t) for t in self._tracks.values()],
+        )
+
+    @classmethod
+    def restore(cls, params: TrackerParams, snapshot: Any) -> VictimTracker:
+        """A tracker that continues exactly where ``snapshot()`` left off.
+
+        Raises FusionError naming the first malformed field.
+        """
+        next_victim_id, next_track_id, records = codec.decode(snapshot)
+        tracker = cls(params, first_id=next_victim_id)
+        tracker._next_track_id = next_track_id
+        for rec in records:
+            t = _Track(
+                track_id=rec.track_id,
+                kf=_new_filter(np.array(rec.x), np.array(rec.p)),
+                state=rec.state,
+                log_odds=rec.log_odds,
+                observations=rec.observations,
+                first_seen_unix_s=rec.first_seen_unix_s,
+                last_seen_unix_s=rec.last_seen_unix_s,
+                t_filter_unix_s=rec.t_filter_unix_s,
+                history=deque(rec.history, maxlen=params.urgency_window),
+                urgency=rec.urgency,
+                visibility_pct=rec.visibility_pct,
+                victim_id=rec.victim_id,
+                merged_into=rec.merged_into,
+            )
+            tracker._tracks[t.track_id] = t
+            if t.victim_id:
+                tracker._by_victim[t.victim_id] = t
+        codec.check_links(tracker._by_victim.keys(), [r.merged_into for r in records])
+        return tracker
+
+
+def _record(t: _Track) -> codec.TrackRecord:
+    return codec.TrackRecord(
+        track_id=t.track_id,
+        victim_id=t.victim_id,
+        state=t.state,
+        x=(float(t.x[0]), float(t.x[1])),
+        p=((float(t.kf.P[0, 0]), float(t.kf.P[0, 1])), (float(t.kf.P[1, 0]), float(t.kf.P[1, 1]))),
+        t_filter_unix_s=t.t_filter_unix_s,
+        log_odds=t.log_odds,
+        observations=t.observations,
+        first_seen_unix_s=t.first_seen_unix_s,
+        last_seen_unix_s=t.last_seen_unix_s,
+        history=tuple(t.history),
+        urgency=t.urgency,
+        visibility_pct=t.visibility_pct,
+        merged_into=t.merged_into,
+    )
+
+
+def _assign(gated: np.ndarray, cost: np.ndarray) -> list[tuple[int, int]]:
+    """Minimum-cost assignment among gated pairs. Pairs alone in their row and
+    column are taken directly; the rest go through linear_sum_assignment."""
+    rows_n = gated.sum(axis=1)
+    cols_n = gated.sum(axis=0)
+    lone = gated & (rows_n[:, None] == 1) & (cols_n[None, :] == 1)
+    pairs = [(int(i), int(j)) for i, j in zip(*np.nonzero(lone), strict=True)]
+    rows = np.nonzero((rows_n > 0) & ~lone.any(axis=1))[0]
+    cols = np.nonzero((cols_n > 0) & ~lone.any(axis=0))[0]
+    if len(rows) and len(cols):
+        sub = cost[np.ix_(rows, cols)]
+        ri, ci = linear_sum_assignment(sub)
+        for i, j in zip(ri, ci, strict=True):
+            if gated[rows[i], cols[j]]:
+                pairs.append((int(rows[i]), int(cols[j])))
+    return pairs
+
+
+def _closest_pair(tracks: list[_Track], merge_chi2: float) -> tuple[_Track, _Track] | None:
+    """The two tracks with the smallest d^2 = dx^T (P1 + P2)^-1 dx, if within merge_chi2."""
+    if len(tracks) < 2:
+        return None
+    x = np.array([t.x for t in tracks])
+    p = np.array([t.kf.P for t in tracks])
+    s = p[:, None] + p[None, :]
+    dx = x[:, None, :] - x[None, :, :]
+    det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
+    d2 = (
+        s[..., 1, 1] * dx[..., 0] ** 2
+        - (s[..., 0, 1] + s[..., 1, 0]) * dx[..., 0] * dx[..., 1]
+        + s[..., 0, 0] * dx[..., 1] ** 2
+    ) / det
+    np.fill_diagonal(d2, np.inf)
+    i, j = np.unravel_index(int(np.argmin(d2)), d2.shape)
+    if d2[i, j] > merge_chi2:
+        return None
+    return tracks[int(i)], tracks[int(j)]
