@@ -1,0 +1,301 @@
+"""`rescue-hq`: the ground side that receives, acknowledges, merges and exports victims.
+
+    rescue-hq [run] [--listen URL ...] [--db PATH] [--sysid N] [--export-dir DIR]
+                    [--signing-key FILE] [--origin LAT,LON,ALT] [--no-table]
+                    [--duration-s T] [-v]
+    rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID) (--rescued | --false-alarm)
+    rescue-hq export --db PATH --out DIR [--origin LAT,LON,ALT]
+    rescue-hq list   --db PATH
+
+Exit status: 0 ok; 1 runtime failure (a link cannot be opened, an export cannot
+be written); 2 bad usage, configuration or database (a clear one-line message
+naming the file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from types import FrameType
+
+from fusion.types import GlobalOrigin
+from hq import export, table
+from hq.app import HqApp, HqOptions
+from hq.registry import OperatorAction, Registry, RegistryError
+from hq.transport import SingleLink, UdpHubLink, open_endpoint
+from hq.view import hq_victims
+from mavlink_io.errors import LinkError, LinkSpecError, SigningError
+from mavlink_io.linkspec import LinkSpec, parse_link
+from mavlink_io.signing import load_signing
+
+log = logging.getLogger("hq")
+
+EXIT_OK = 0
+EXIT_RUNTIME = 1
+EXIT_USAGE = 2
+DEFAULT_LISTEN = "udpin:0.0.0.0:14600"
+DEFAULT_DB = "rescue-hq.sqlite"
+_SUBCOMMANDS = ("run", "mark", "export", "list")
+
+
+class UsageError(Exception):
+    """Bad usage or configuration: exit 2."""
+
+
+def _origin(text: str) -> GlobalOrigin:
+    parts = text.split(",")
+    try:
+        if len(parts) != 3:
+            raise ValueError("expected LAT,LON,ALT")
+        return GlobalOrigin(float(parts[0]), float(parts[1]), float(parts[2]))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"origin {text!r}: {exc}") from None
+
+
+def _sysid(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 1 <= value <= 255:
+        raise argparse.ArgumentTypeError(f"system ID {value} is outside 1..255")
+    return value
+
+
+def _duration(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError("duration must be positive")
+    return value
+
+
+def _run_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rescue-hq",
+        description="Receive, acknowledge, merge and export victim reports from rescue robots. "
+        "Other commands: mark, export, list (rescue-hq COMMAND --help).",
+    )
+    p.add_argument(
+        "--listen",
+        action="append",
+        metavar="URL",
+        help=f"link to listen on, repeatable (default {DEFAULT_LISTEN}); "
+        "udpin:H:P, udpout:H:P, tcp:H:P, tcpin:H:P, serial:/dev/X:BAUD",
+    )
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB), help="SQLite registry file")
+    p.add_argument("--sysid", type=_sysid, default=245, help="the HQ's MAVLink system ID")
+    p.add_argument("--export-dir", type=Path, help="write victims.geojson/.kml/.plan here")
+    p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (mode 0600)")
+    p.add_argument(
+        "--origin",
+        type=_origin,
+        help="EKF origin LAT,LON,ALT of robots that report only local NED positions",
+    )
+    p.add_argument("--no-table", action="store_true", help="plain log lines, no live table")
+    p.add_argument("--duration-s", type=_duration, help="run this long, then exit cleanly")
+    p.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
+    return p
+
+
+def _mark_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rescue-hq mark",
+        description="Record an operator decision; the running HQ sends it to the robot "
+        "and resends until the robot acknowledges.",
+    )
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
+    p.add_argument("--robot", type=_sysid, help="robot system ID (with --victim)")
+    p.add_argument("--victim", type=int, help="the robot's victim ID (with --robot)")
+    p.add_argument("--id", type=int, dest="hq_id", help="HQ victim ID (every robot's source)")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--rescued", action="store_true")
+    what.add_argument("--false-alarm", action="store_true")
+    return p
+
+
+def _export_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rescue-hq export", description="Write the export files.")
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument("--origin", type=_origin, help="EKF origin LAT,LON,ALT (default: stored)")
+    return p
+
+
+def _list_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="rescue-hq list", description="Print the table once.")
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
+    return p
+
+
+def _open_registry(path: Path, *, must_exist: bool) -> Registry:
+    if must_exist and not path.exists():
+        raise UsageError(f"database {path}: no such file")
+    if path.is_dir():
+        raise UsageError(f"database {path}: is a directory")
+    try:
+        return Registry(path)
+    except RegistryError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    try:
+        specs = [parse_link(url) for url in (args.listen or [DEFAULT_LISTEN])]
+        signing = load_signing(args.signing_key) if args.signing_key else None
+    except (LinkSpecError, SigningError) as exc:
+        raise UsageError(str(exc)) from None
+    registry = _open_registry(args.db, must_exist=False)
+    try:
+        if args.origin is not None:
+            registry.set_default_origin(args.origin)
+        endpoints = _open_endpoints(specs)
+        try:
+            options = HqOptions(
+                sysid=args.sysid,
+                export_dir=args.export_dir,
+                signing=signing,
+                live_table=not args.no_table and sys.stdout.isatty(),
+                duration_s=args.duration_s,
+                origin=args.origin,
+            )
+            app = HqApp(registry, endpoints, options, sys.stdout)
+            stop = threading.Event()
+            _install_signal_handlers(stop)
+            app.run(stop)
+            c = app.counters
+            log.info(
+                "stopped: %d reports, %d duplicates, %d rejected, %d acks, %d actions acked",
+                c.reports,
+                c.duplicates,
+                c.rejected,
+                c.acks_sent,
+                c.actions_acked,
+            )
+        finally:
+            for ep in endpoints:
+                ep.close()
+    finally:
+        registry.close()
+    return EXIT_OK
+
+
+def _open_endpoints(specs: list[LinkSpec]) -> list[UdpHubLink | SingleLink]:
+    opened: list[UdpHubLink | SingleLink] = []
+    try:
+        for spec in specs:
+            ep = open_endpoint(spec)
+            opened.append(ep)
+            where = (
+                f"udpin:{ep.local_address[0]}:{ep.local_address[1]}"
+                if isinstance(ep, UdpHubLink)
+                else ep.name
+            )
+            print(f"rescue-hq: listening on {where}", flush=True)
+    except LinkError:
+        for ep in opened:
+            ep.close()
+        raise
+    return opened
+
+
+def _install_signal_handlers(stop: threading.Event) -> None:
+    def handler(_signum: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGINT, handler)
+
+
+def _cmd_mark(args: argparse.Namespace) -> int:
+    by_source = args.robot is not None or args.victim is not None
+    if by_source == (args.hq_id is not None) or (by_source and None in (args.robot, args.victim)):
+        raise UsageError("mark: give either --robot N --victim ID, or --id HQ_ID")
+    action = OperatorAction.RESCUED if args.rescued else OperatorAction.FALSE_ALARM
+    with _open_registry(args.db, must_exist=True) as registry:
+        if by_source:
+            targets = [(args.robot, args.victim)]
+        else:
+            found = [v for v in hq_victims(registry) if v.hq_id == args.hq_id]
+            if not found:
+                raise UsageError(f"mark: no HQ victim {args.hq_id} in {args.db}")
+            targets = list(found[0].sources)
+        for robot, victim in targets:
+            try:
+                seq = registry.add_action(robot, victim, action)
+            except KeyError as exc:
+                raise UsageError(f"mark: {exc.args[0]} (in {args.db})") from None
+            print(
+                f"action {seq}: {action.name} robot {robot} victim {victim} recorded; "
+                "the running rescue-hq sends it until the robot acknowledges"
+            )
+    return EXIT_OK
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    with _open_registry(args.db, must_exist=True) as registry:
+        victims = hq_victims(registry)
+        origin = args.origin or registry.default_origin()
+    try:
+        result = export.export_all(victims, args.out, origin)
+    except OSError as exc:
+        print(f"rescue-hq: cannot write exports to {args.out}: {exc}", file=sys.stderr)
+        return EXIT_RUNTIME
+    for path in result.written:
+        print(path)
+    if result.local_only:
+        print(f"{result.local_only} victim(s) without lat/lon left out: give --origin LAT,LON,ALT")
+    return EXIT_OK
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    with _open_registry(args.db, must_exist=True) as registry:
+        header = table.Header(0, [str(args.db)], registry.report_count(), False)
+        text = table.render(
+            header,
+            hq_victims(registry),
+            registry.robots(),
+            time.time(),
+            colour=sys.stdout.isatty(),
+        )
+    sys.stdout.write(text)
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = argv[0] if argv and argv[0] in _SUBCOMMANDS else "run"
+    if argv and argv[0] in _SUBCOMMANDS:
+        argv = argv[1:]
+    parsers = {
+        "run": (_run_parser, _cmd_run),
+        "mark": (_mark_parser, _cmd_mark),
+        "export": (_export_parser, _cmd_export),
+        "list": (_list_parser, _cmd_list),
+    }
+    make_parser, run = parsers[command]
+    args = make_parser().parse_args(argv)  # exits 2 on bad usage
+    logging.basicConfig(
+        level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return run(args)
+    except UsageError as exc:
+        print(f"rescue-hq: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except LinkError as exc:
+        print(f"rescue-hq: {exc}", file=sys.stderr)
+        return EXIT_RUNTIME
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,188 @@
+"""Exports of the HQ victims for other tools, written atomically.
+
+- ``victims.geojson``: a FeatureCollection of Points (RFC 7946: [lon, lat, alt]);
+  properties: id, urgency, visibility_pct, state, robots, sources, first/last seen
+  (ISO 8601 UTC), sigma_m, north_m/east_m/down_m.
+- ``victims.kml``: one Placemark per victim with a style per urgency (Google
+  Earth; QGroundControl shows KML as a map overlay).
+- ``victims.plan``: a QGroundControl plan file (fileType "Plan", version 1) with
+  an empty mission and geofence and the victims as rally points, so QGC draws them
+  on its map and can fly to them.
+
+Only victims with a latitude/longitude appear in these files: a victim is placed
+on the globe when its robot reported lat/lon, or when the HQ knows an EKF origin
+for its robot (GPS_GLOBAL_ORIGIN from the vehicle, or the operator's ``--origin``).
+Victims known only in a local NED frame are counted in ``ExportResult.local_only``
+and shown by the live table and ``rescue-hq list``.
+
+Each file is written to a temporary file in the same directory, flushed to disk
+and renamed over the old one: a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from fusion.types import GlobalOrigin, Urgency
+from hq.view import HqVictim
+
+GEOJSON_NAME = "victims.geojson"
+KML_NAME = "victims.kml"
+PLAN_NAME = "victims.plan"
+
+# KML colours are aabbggrr.
+_KML_COLOURS = {
+    Urgency.CRITICAL: "ff0000ff",  # red
+    Urgency.MEDIUM: "ff00a5ff",  # orange
+    Urgency.LIGHT: "ff00c000",  # green
+}
+# QGC plan defaults: ArduPilot (MAV_AUTOPILOT_ARDUPILOTMEGA) ground rover (MAV_TYPE_GROUND_ROVER).
+_FIRMWARE_ARDUPILOT = 3
+_VEHICLE_GROUND_ROVER = 10
+_ROVER_CRUISE_SPEED_M_S = 1.0
+_HOVER_SPEED_M_S = 1.0
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    written: tuple[Path, ...]
+    placed: int  # victims in the files
+    local_only: int  # victims without lat/lon (not in the files)
+
+
+def _iso(unix_s: float) -> str:
+    return datetime.fromtimestamp(unix_s, UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
+
+
+def _name(v: HqVictim) -> str:
+    return f"V{v.hq_id} {v.urgency.name}"
+
+
+def geojson(victims: list[HqVictim]) -> dict[str, Any]:
+    features = []
+    for v in victims:
+        if not v.has_global:
+            continue
+        features.append(
+            {
+                "type": "Feature",
+                "id": v.hq_id,
+                "geometry": {"type": "Point", "coordinates": [v.lon_deg, v.lat_deg, v.alt_m]},
+                "properties": {
+                    "id": v.hq_id,
+                    "name": _name(v),
+                    "urgency": v.urgency.name,
+                    "visibility_pct": round(v.visibility_pct, 1),
+                    "state": v.state.name,
+                    "robots": list(v.robots),
+                    "sources": [{"robot": r, "victim_id": i} for r, i in v.sources],
+                    "first_seen": _iso(v.first_seen_unix_s),
+                    "last_seen": _iso(v.last_seen_unix_s),
+                    "sigma_m": round(v.sigma_m, 3),
+                    "north_m": round(v.north_m, 3),
+                    "east_m": round(v.east_m, 3),
+                    "down_m": round(v.down_m, 3),
+                },
+            }
+        )
+    return {"type": "FeatureCollection", "features": features}
+
+
+def kml(victims: list[HqVictim]) -> bytes:
+    ns = "http://www.opengis.net/kml/2.2"
+    root = ET.Element("kml", xmlns=ns)
+    doc = ET.SubElement(root, "Document")
+    ET.SubElement(doc, "name").text = "rescue-hq victims"
+    for urgency, colour in _KML_COLOURS.items():
+        style = ET.SubElement(doc, "Style", id=urgency.name.lower())
+        icon_style = ET.SubElement(style, "IconStyle")
+        ET.SubElement(icon_style, "color").text = colour
+        ET.SubElement(icon_style, "scale").text = "1.2" if urgency == Urgency.CRITICAL else "1.0"
+        icon = ET.SubElement(icon_style, "Icon")
+        ET.SubElement(
+            icon, "href"
+        ).text = "http://maps.google.com/mapfiles/kml/shapes/placemark_circle.png"
+    for v in victims:
+        if not v.has_global:
+            continue
+        mark = ET.SubElement(doc, "Placemark", id=f"victim-{v.hq_id}")
+        ET.SubElement(mark, "name").text = _name(v)
+        ET.SubElement(mark, "description").text = (
+            f"{v.urgency.name}, {v.visibility_pct:.0f}% visible, {v.state.name}; "
+            f"robots {', '.join(str(r) for r in v.robots)}; ±{v.sigma_m:.1f} m; "
+            f"last seen {_iso(v.last_seen_unix_s)}"
+        )
+        ET.SubElement(mark, "styleUrl").text = f"#{v.urgency.name.lower()}"
+        stamp = ET.SubElement(mark, "TimeStamp")
+        ET.SubElement(stamp, "when").text = _iso(v.last_seen_unix_s)
+        point = ET.SubElement(mark, "Point")
+        ET.SubElement(point, "coordinates").text = f"{v.lon_deg:.8f},{v.lat_deg:.8f},{v.alt_m:.2f}"
+    ET.indent(root)
+    return bytes(ET.tostring(root, encoding="utf-8", xml_declaration=True))
+
+
+def plan(victims: list[HqVictim], origin: GlobalOrigin | None) -> dict[str, Any]:
+    placed = [v for v in victims if v.has_global]
+    home: list[float | None]
+    if origin is not None:
+        home = [origin.lat_deg, origin.lon_deg, origin.alt_m]
+    elif placed:
+        home = [placed[0].lat_deg, placed[0].lon_deg, placed[0].alt_m]
+    else:
+        home = [0.0, 0.0, 0.0]
+    return {
+        "fileType": "Plan",
+        "version": 1,
+        "groundStation": "QGroundControl",
+        "mission": {
+            "version": 2,
+            "firmwareType": _FIRMWARE_ARDUPILOT,
+            "vehicleType": _VEHICLE_GROUND_ROVER,
+            "cruiseSpeed": _ROVER_CRUISE_SPEED_M_S,
+            "hoverSpeed": _HOVER_SPEED_M_S,
+            "plannedHomePosition": home,
+            "items": [],
+        },
+        "geoFence": {"version": 2, "polygons": [], "circles": []},
+        "rallyPoints": {
+            "version": 2,
+            "points": [[v.lat_deg, v.lon_deg, v.alt_m] for v in placed],
+        },
+    }
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see the old or the new file, never half."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def export_all(victims: list[HqVictim], out_dir: Path, origin: GlobalOrigin | None) -> ExportResult:
+    """Write the three files into ``out_dir`` (created if missing); OSError on failure."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {
+        GEOJSON_NAME: json.dumps(geojson(victims), indent=1).encode(),
+        KML_NAME: kml(victims),
+        PLAN_NAME: json.dumps(plan(victims, origin), indent=4).encode(),
+    }
+    for name, data in files.items():
+        write_atomic(out_dir / name, data)
+    placed = sum(1 for v in victims if v.has_global)
+    return ExportResult(
+        tuple(out_dir / n for n in files), placed=placed, local_only=len(victims) - placed
+    )
