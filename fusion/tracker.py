@@ -15,8 +15,11 @@ Per ``update`` (one processed camera frame, with or without detections):
    method over the gated pairs, cost d^2 + ln det S (the negative log-likelihood,
    so a broad track does not steal a detection from a sharp one);
 3. matched tracks are updated and gain ``hit_log_odds``; observations matched to,
-   or inside the gate of, a RESCUED or FALSE_ALARM track are absorbed by it; other
-   unmatched observations start tentative tracks;
+   or inside the gate of, a RESCUED or FALSE_ALARM track are absorbed by it; an
+   unmatched observation within ``merge_chi2`` of a track detected in the same frame
+   is a duplicate detection of that victim and is dropped (else one victim detected
+   twice per frame would spawn a track, confirm and merge, again and again); the
+   remaining unmatched observations start tentative tracks;
 4. tentative tracks in view (``in_view(north, east)``) but not detected gain
    ``miss_log_odds``; they are confirmed at ``confirm_log_odds`` and die below
    ``delete_log_odds`` or when unseen for ``tentative_timeout_s``;
@@ -176,22 +179,41 @@ class VictimTracker:
         for t in live:
             t.matched = False
         self._predict(live, now_unix_s)
-        pairs, gated = self._associate(live, observations)
+        pairs, d2 = self._associate(live, observations)
         for i, j in pairs:
             self._hit(live[i], observations[j], events)
-        paired_obs = {j for _, j in pairs}
-        absorbing = np.array([t.state in _ABSORBING for t in live], dtype=bool)
-        for j, obs in enumerate(observations):
-            if j in paired_obs:
-                continue
-            if len(live) and bool(np.any(gated[:, j] & absorbing)):
-                log.debug("observation at (%.2f, %.2f) absorbed", obs.north_m, obs.east_m)
-                continue
-            self._start(obs, now_unix_s)
+        self._spawn(live, observations, pairs, d2, now_unix_s)
         self._negative_evidence(live, in_view)
         self._life_cycle(live, now_unix_s, events)
         self._merge(events)
         return events
+
+    def _spawn(
+        self,
+        live: list[_Track],
+        observations: Sequence[Observation],
+        pairs: list[tuple[int, int]],
+        d2: np.ndarray,
+        now_unix_s: float,
+    ) -> None:
+        """Start tentative tracks from unmatched observations, except those absorbed
+        by a RESCUED/FALSE_ALARM track (inside its gate) and duplicates (inside the
+        merge distance of a track already detected in this frame)."""
+        paired_obs = {j for _, j in pairs}
+        absorbing = np.array([t.state in _ABSORBING for t in live], dtype=bool)
+        matched = np.zeros(len(live), dtype=bool)
+        matched[[i for i, _ in pairs]] = True
+        for j, obs in enumerate(observations):
+            if j in paired_obs:
+                continue
+            if len(live):
+                if np.any((d2[:, j] <= self._params.gate_chi2) & absorbing):
+                    log.debug("observation at (%.2f, %.2f) absorbed", obs.north_m, obs.east_m)
+                    continue
+                if np.any((d2[:, j] <= self._params.merge_chi2) & matched):
+                    log.debug("duplicate detection at (%.2f, %.2f)", obs.north_m, obs.east_m)
+                    continue
+            self._start(obs, now_unix_s)
 
     def _predict(self, live: list[_Track], now_unix_s: float) -> None:
         q = self._params.process_noise_m2_s
@@ -207,10 +229,10 @@ class VictimTracker:
         self, live: list[_Track], observations: Sequence[Observation]
     ) -> tuple[list[tuple[int, int]], np.ndarray]:
         """Gated Hungarian assignment; returns (track index, obs index) pairs and the
-        gate matrix."""
+        matrix of squared Mahalanobis distances."""
         n_t, n_o = len(live), len(observations)
         if n_t == 0 or n_o == 0:
-            return [], np.zeros((n_t, n_o), dtype=bool)
+            return [], np.zeros((n_t, n_o))
         x = np.array([t.x for t in live])  # (T, 2)
         p = np.array([t.kf.P for t in live])  # (T, 2, 2)
         z = np.array([(o.north_m, o.east_m) for o in observations])  # (O, 2)
@@ -227,7 +249,7 @@ class VictimTracker:
         ) / det
         gated = d2 <= self._params.gate_chi2
         cost = np.where(gated, d2 + np.log(det), _INFEASIBLE)
-        return _assign(gated, cost), gated
+        return _assign(gated, cost), d2
 
     def _hit(self, t: _Track, obs: Observation, events: list[TrackEvent]) -> None:
         t.matched = True

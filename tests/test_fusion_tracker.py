@@ -1,0 +1,304 @@
+"""VictimTracker behaviours one at a time: life cycle, merge, urgency, operator
+marks, persistence errors, reports."""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+import pytest
+
+from fusion.errors import FusionError
+from fusion.geodesy import geodetic_to_ned
+from fusion.params import TrackerParams
+from fusion.tracker import EventKind, VictimTracker, moved_beyond
+from fusion.types import GlobalOrigin, Observation, TrackState, Urgency
+from fusion.urgency import classify, weighted_median
+
+T0 = 1_700_000_000.0
+PARAMS = TrackerParams()
+
+
+def obs(
+    north_m: float,
+    east_m: float,
+    t: float,
+    var_m2: float = 0.04,
+    visibility_pct: float = 80.0,
+    quality: float = 1.0,
+) -> Observation:
+    return Observation(
+        T0 + t, north_m, east_m, ((var_m2, 0.0), (0.0, var_m2)), visibility_pct, quality, 3.0
+    )
+
+
+def always(_n: float, _e: float) -> bool:
+    return True
+
+
+def never(_n: float, _e: float) -> bool:
+    return False
+
+
+def confirmed_victim(tracker: VictimTracker, north_m: float, east_m: float, t0: float) -> int:
+    """Feed hits until the track confirms; return its victim ID."""
+    for k in range(10):
+        for ev in tracker.update([obs(north_m, east_m, t0 + k)], T0 + t0 + k, always):
+            if ev.kind == EventKind.CONFIRMED:
+                return ev.victim.victim_id
+    raise AssertionError("never confirmed")
+
+
+def test_confirmation_needs_support_and_ids_are_consecutive() -> None:
+    tracker = VictimTracker(PARAMS, first_id=7)
+    # Three hits of 0.85 reach 2.5: the third update confirms, not the second.
+    assert tracker.update([obs(1.0, 1.0, 0.0)], T0, always) == []
+    assert tracker.update([obs(1.05, 1.0, 0.1)], T0 + 0.1, always) == []
+    assert tracker.victims() == []
+    assert len(tracker.victims(include_tentative=True)) == 1
+    (ev,) = tracker.update([obs(0.95, 1.0, 0.2)], T0 + 0.2, always)
+    assert ev.kind == EventKind.CONFIRMED
+    assert ev.victim.victim_id == 7 and ev.victim.state == TrackState.CONFIRMED
+    assert ev.victim.observations == 3
+    # Nearly the mean of 1.0, 1.05, 0.95: the process noise (0.0002 m^2 per 0.1 s
+    # against R = 0.04 m^2) weighs later fixes ~0.5 % more, hence 1e-3 m.
+    assert ev.victim.north_m == pytest.approx(1.0, abs=1e-3)
+    # Clutter far away never confirms but consumes no victim ID.
+    tracker.update([obs(9.0, 9.0, 1.0)], T0 + 1.0, never)
+    assert confirmed_victim(tracker, -3.0, 2.0, 2.0) == 8
+
+
+def test_negative_evidence_kills_tentative_tracks_only_when_in_view() -> None:
+    tracker = VictimTracker(PARAMS)
+    tracker.update([obs(2.0, 0.0, 0.0)], T0, always)
+    # 0.85 - 6 * 0.4 = -1.55 < -1.5: gone after six frames in view without a detection.
+    for k in range(1, 6):
+        tracker.update([], T0 + 0.1 * k, always)
+        assert len(tracker.victims(include_tentative=True)) == 1
+    tracker.update([], T0 + 0.6, always)
+    assert tracker.victims(include_tentative=True) == []
+    # Out of view it waits, until tentative_timeout_s.
+    tracker.update([obs(2.0, 0.0, 1.0)], T0 + 1.0, never)
+    tracker.update([], T0 + 1.0 + PARAMS.tentative_timeout_s - 0.1, never)
+    assert len(tracker.victims(include_tentative=True)) == 1
+    tracker.update([], T0 + 1.0 + PARAMS.tentative_timeout_s + 0.1, never)
+    assert tracker.victims(include_tentative=True) == []
+
+
+def test_confirmed_victims_are_never_deleted_and_flagged_when_unseen() -> None:
+    tracker = VictimTracker(PARAMS)
+    vid = confirmed_victim(tracker, 1.0, 2.0, 0.0)
+    last = tracker.victim(vid).last_seen_unix_s
+    events = []
+    for k in range(1, 80):  # 79 s of frames with the victim in view, undetected
+        events += tracker.update([], last + k, always)
+    assert [e.kind for e in events] == [EventKind.NOT_SEEN_RECENTLY]
+    assert events[0].victim.victim_id == vid
+    assert tracker.victim(vid).state == TrackState.NOT_SEEN_RECENTLY
+    (back,) = tracker.update([obs(1.0, 2.0, last - T0 + 80)], last + 80, always)
+    assert back.kind == EventKind.SEEN_AGAIN
+    assert tracker.victim(vid).state == TrackState.CONFIRMED
+
+
+def test_association_prefers_the_sharper_track_and_keeps_ids() -> None:
+    tracker = VictimTracker(PARAMS)
+    a = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    b = confirmed_victim(tracker, 3.0, 0.0, 10.0)
+    for k in range(30):  # both seen every frame, listed in alternating order
+        pair = [obs(0.02, 0.0, 20 + k), obs(3.02, 0.0, 20 + k)]
+        tracker.update(pair if k % 2 else pair[::-1], T0 + 20 + k, always)
+    va, vb = tracker.victim(a), tracker.victim(b)
+    assert va.north_m == pytest.approx(0.02, abs=0.02)
+    assert vb.north_m == pytest.approx(3.02, abs=0.02)
+    assert va.observations == vb.observations == 33
+
+
+def test_two_converging_confirmed_tracks_merge_into_the_older() -> None:
+    tracker = VictimTracker(PARAMS)
+    tight = 0.01
+    older = younger = 0
+    for k in range(3):
+        for ev in tracker.update([obs(0.0, 0.0, k, tight)], T0 + k, always):
+            older = ev.victim.victim_id
+    for k in range(3, 6):  # 0.6 m away: outside the gate of the first track
+        for ev in tracker.update([obs(0.6, 0.0, k, tight)], T0 + k, always):
+            younger = ev.victim.victim_id
+    assert (older, younger) == (1, 2)
+    merged = []
+    for k in range(6, 60):  # the victim is seen twice per frame in between
+        pair = [obs(0.3, 0.0, k, tight), obs(0.3, 0.0, k, tight)]
+        merged += [e for e in tracker.update(pair, T0 + k, always) if e.kind == EventKind.MERGED]
+    assert len(merged) == 1
+    assert merged[0].victim.victim_id == younger
+    assert merged[0].victim.merged_into == older
+    assert tracker.victim(younger).state == TrackState.MERGED
+    assert tracker.resolve(younger) == older
+    survivor = tracker.victim(older)
+    assert survivor.state == TrackState.CONFIRMED
+    assert survivor.north_m == pytest.approx(0.3, abs=0.1)
+    states = {v.victim_id: v.state for v in tracker.victims()}
+    assert states == {older: TrackState.CONFIRMED, younger: TrackState.MERGED}
+
+
+def test_weighted_median() -> None:
+    assert weighted_median([1.0, 2.0, 3.0, 4.0], [1.0, 1.0, 1.0, 1.0]) == 2.5
+    assert weighted_median([5.0, 90.0, 6.0], [1.0, 1.0, 1.0]) == 6.0
+    assert weighted_median([5.0, 90.0, 6.0], [0.1, 1.0, 0.1]) == 90.0
+    assert weighted_median([5.0, 90.0], [0.0, 0.0]) == 47.5  # no weights: all count
+    with pytest.raises(ValueError, match="no values"):
+        weighted_median([], [])
+
+
+def test_classify_hysteresis() -> None:
+    h = 3.0
+    assert classify(None, 11.0, h) == Urgency.MEDIUM
+    assert classify(Urgency.MEDIUM, 7.5, h) == Urgency.MEDIUM  # within 10 - 3
+    assert classify(Urgency.MEDIUM, 6.9, h) == Urgency.CRITICAL
+    assert classify(Urgency.CRITICAL, 12.9, h) == Urgency.CRITICAL
+    assert classify(Urgency.CRITICAL, 13.1, h) == Urgency.MEDIUM
+    assert classify(Urgency.LIGHT, 47.5, h) == Urgency.LIGHT
+    assert classify(Urgency.LIGHT, 5.0, h) == Urgency.CRITICAL  # big jumps go straight
+
+
+def test_urgency_does_not_flap_around_a_threshold() -> None:
+    tracker = VictimTracker(PARAMS)
+    t = 0.0
+    for t in range(3):
+        tracker.update([obs(0.0, 0.0, t, visibility_pct=12.0)], T0 + t, always)
+    vid = tracker.victims()[0].victim_id
+    assert tracker.victim(vid).urgency == Urgency.MEDIUM
+    changes = []
+    # Visibility measured 8-12 %, around the 10 % boundary, with an outlier now and then.
+    pattern = [8.5, 11.5, 9.0, 12.0, 8.0, 60.0, 9.5, 11.0]
+    for k in range(40):
+        t = 3.0 + k
+        o = obs(0.0, 0.0, t, visibility_pct=pattern[k % len(pattern)])
+        changes += [e for e in tracker.update([o], T0 + t, always) if e.kind != EventKind.MOVED]
+    assert changes == []
+    assert tracker.victim(vid).urgency == Urgency.MEDIUM
+    # A clear change (the victim is covered further) is one event, once.
+    for k in range(20):
+        t = 50.0 + k
+        o = obs(0.0, 0.0, t, visibility_pct=4.0)
+        changes += tracker.update([o], T0 + t, always)
+    assert [(e.kind, e.victim.urgency) for e in changes] == [
+        (EventKind.URGENCY_CHANGED, Urgency.CRITICAL)
+    ]
+
+
+def test_low_quality_observations_weigh_less() -> None:
+    tracker = VictimTracker(PARAMS)
+    for t in range(9):
+        good = t % 3 == 0
+        o = obs(0.0, 0.0, t, visibility_pct=70.0 if good else 5.0, quality=1.0 if good else 0.1)
+        tracker.update([o], T0 + t, always)
+    (v,) = tracker.victims()
+    assert v.visibility_pct == 70.0 and v.urgency == Urgency.LIGHT
+
+
+def test_operator_marks_and_absorption() -> None:
+    tracker = VictimTracker(PARAMS)
+    vid = confirmed_victim(tracker, 2.0, 2.0, 0.0)
+    ev = tracker.mark(vid, TrackState.RESCUED, T0 + 10)
+    assert ev.kind == EventKind.OPERATOR and ev.victim.state == TrackState.RESCUED
+    before = tracker.victims(include_tentative=True)
+    for k in range(20):  # still detected there (two detections per frame even)
+        pair = [obs(2.0, 2.0, 11 + k, visibility_pct=5.0), obs(2.05, 2.0, 11 + k)]
+        assert tracker.update(pair, T0 + 11 + k, always) == []
+    after = tracker.victims(include_tentative=True)
+    assert len(after) == len(before) == 1
+    assert after[0].state == TrackState.RESCUED
+    # No NOT_SEEN_RECENTLY for a rescued victim either.
+    assert tracker.update([], T0 + 500.0, always) == []
+    # Reopen, then a false alarm.
+    assert tracker.mark(vid, TrackState.CONFIRMED, T0 + 501).victim.state == TrackState.CONFIRMED
+    assert tracker.mark(vid, TrackState.FALSE_ALARM, T0 + 502).victim.state == (
+        TrackState.FALSE_ALARM
+    )
+    with pytest.raises(KeyError, match="no victim with id 99"):
+        tracker.mark(99, TrackState.RESCUED, T0)
+    with pytest.raises(ValueError, match="not MERGED"):
+        tracker.mark(vid, TrackState.MERGED, T0)
+
+
+def test_report_and_moved_helper() -> None:
+    tracker = VictimTracker(PARAMS)
+    vid = confirmed_victim(tracker, 10.0, -5.0, 0.0)
+    v = tracker.victim(vid)
+    local = v.to_report(robot_sysid=1, down_m=0.2, origin=None)
+    assert local.victim_id == vid and not local.has_global
+    assert local.cov_ne_m2 == v.cov_ne_m2 and local.urgency == v.urgency
+    origin = GlobalOrigin(47.0, 8.0, 400.0)
+    rep = v.to_report(robot_sysid=1, down_m=0.2, origin=origin)
+    assert rep.lat_deg is not None and rep.lon_deg is not None and rep.alt_m is not None
+    back = geodetic_to_ned(origin, rep.lat_deg, rep.lon_deg, rep.alt_m)
+    assert back == pytest.approx((10.0, -5.0, 0.2), abs=0.05)
+    assert v.sigma_m == pytest.approx(rep.sigma_m)
+    assert not moved_beyond(v, v.north_m + 0.5 * v.sigma_m, v.east_m, 1.0)
+    assert moved_beyond(v, v.north_m + 3.1 * v.sigma_m, v.east_m, 3.0)
+
+
+def _snapshot() -> dict[str, Any]:
+    tracker = VictimTracker(PARAMS)
+    confirmed_victim(tracker, 1.0, 1.0, 0.0)
+    confirmed_victim(tracker, 5.0, 1.0, 10.0)
+    tracker.update([obs(-4.0, 0.0, 20.0)], T0 + 20, never)  # a tentative one too
+    return tracker.snapshot()
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        (("version",), 99, r"snapshot\.version"),
+        (("next_victim_id",), 2, r"next_victim_id: 2 would reuse"),
+        (("tracks", 0, "state"), "ALIVE", r"tracks\[0\]\.state: expected one of"),
+        (("tracks", 1, "P"), [[1.0, 0.0], [0.0, -1.0]], r"tracks\[1\]\.P: not a symmetric"),
+        (("tracks", 1, "x"), [1.0, "n"], r"tracks\[1\]\.x\[1\]: expected a finite number"),
+        (("tracks", 0, "history"), [], r"tracks\[0\]\.history"),
+        (("tracks", 1, "track_id"), 1, r"duplicate track_id"),
+        (("tracks", 2, "victim_id"), 3, r"victim_id 3 does not fit state TENTATIVE"),
+        (("tracks",), "none", r"snapshot\.tracks: expected a list"),
+    ],
+)
+def test_malformed_snapshot_names_the_problem(
+    path: tuple[Any, ...], value: object, message: str
+) -> None:
+    snap = copy.deepcopy(_snapshot())
+    target: Any = snap
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = value
+    with pytest.raises(FusionError, match=message):
+        VictimTracker.restore(PARAMS, snap)
+
+
+def test_snapshot_missing_key_and_wrong_type() -> None:
+    snap = _snapshot()
+    del snap["tracks"][1]["log_odds"]
+    with pytest.raises(FusionError, match=r"tracks\[1\]: missing key 'log_odds'"):
+        VictimTracker.restore(PARAMS, snap)
+    with pytest.raises(FusionError, match="expected an object"):
+        VictimTracker.restore(PARAMS, [1, 2, 3])
+
+
+def test_restore_keeps_ids_running() -> None:
+    restored = VictimTracker.restore(PARAMS, _snapshot())
+    assert [v.victim_id for v in restored.victims()] == [1, 2]
+    assert confirmed_victim(restored, -8.0, 3.0, 30.0) == 3
+    assert math.isfinite(restored.victim(1).log_odds)
+
+
+def test_duplicate_detections_in_one_frame_make_one_victim() -> None:
+    tracker = VictimTracker(PARAMS)
+    events = []
+    for k in range(30):  # the detector reports the victim twice in every frame
+        pair = [obs(1.0, 1.0, k, 0.01), obs(1.02, 0.99, k, 0.01)]
+        events += tracker.update(pair, T0 + k, always)
+    assert [e.kind for e in events] == [EventKind.CONFIRMED]
+    assert len(tracker.victims(include_tentative=True)) == 1
+    # A second body 0.6 m away (well outside the merge distance) is still found.
+    for k in range(30, 40):
+        pair = [obs(1.0, 1.0, k, 0.01), obs(1.6, 1.0, k, 0.01)]
+        events += tracker.update(pair, T0 + k, always)
+    assert [v.victim_id for v in tracker.victims()] == [1, 2]
