@@ -17,9 +17,10 @@ Per ``update`` (one processed camera frame, with or without detections):
 3. matched tracks are updated and gain ``hit_log_odds``; observations matched to,
    or inside the gate of, a RESCUED or FALSE_ALARM track are absorbed by it; an
    unmatched observation within ``merge_chi2`` of a track detected in the same frame
-   is a duplicate detection of that victim and is dropped (else one victim detected
-   twice per frame would spawn a track, confirm and merge, again and again); the
-   remaining unmatched observations start tentative tracks;
+   (or of another observation that starts a track in it) is a duplicate detection
+   of that victim and is dropped (else one victim detected twice per frame would
+   spawn a track, confirm and merge, again and again); the remaining unmatched
+   observations start tentative tracks;
 4. tentative tracks in view (``in_view(north, east)``) but not detected gain
    ``miss_log_odds``; they are confirmed at ``confirm_log_odds`` and die below
    ``delete_log_odds`` or when unseen for ``tentative_timeout_s``;
@@ -203,6 +204,7 @@ class VictimTracker:
         absorbing = np.array([t.state in _ABSORBING for t in live], dtype=bool)
         matched = np.zeros(len(live), dtype=bool)
         matched[[i for i, _ in pairs]] = True
+        started: list[Observation] = []
         for j, obs in enumerate(observations):
             if j in paired_obs:
                 continue
@@ -213,6 +215,10 @@ class VictimTracker:
                 if np.any((d2[:, j] <= self._params.merge_chi2) & matched):
                     log.debug("duplicate detection at (%.2f, %.2f)", obs.north_m, obs.east_m)
                     continue
+            if any(_obs_d2(obs, other) <= self._params.merge_chi2 for other in started):
+                log.debug("duplicate new detection at (%.2f, %.2f)", obs.north_m, obs.east_m)
+                continue
+            started.append(obs)
             self._start(obs, now_unix_s)
 
     def _predict(self, live: list[_Track], now_unix_s: float) -> None:
@@ -461,6 +467,13 @@ def _assign(gated: np.ndarray, cost: np.ndarray) -> list[tuple[int, int]]:
             if gated[rows[i], cols[j]]:
                 pairs.append((int(rows[i]), int(cols[j])))
     return pairs
+
+
+def _obs_d2(a: Observation, b: Observation) -> float:
+    """d^2 = dz^T (R_a + R_b)^-1 dz between two observations."""
+    s = np.array(a.cov_ne_m2) + np.array(b.cov_ne_m2)
+    dz = np.array([a.north_m - b.north_m, a.east_m - b.east_m])
+    return float(dz @ np.linalg.solve(s, dz))
 
 
 def _closest_pair(tracks: list[_Track], merge_chi2: float) -> tuple[_Track, _Track] | None:
