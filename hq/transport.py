@@ -37,6 +37,7 @@ _MAX_PEERS = 64  # a hub for a fleet of robots, not a public server
 
 class Endpoint(Protocol):
     name: str
+    datagram: bool  # True: every read is whole frames (UDP); a partial frame at the end is garbage
 
     def receive(self, timeout_s: float) -> tuple[bytes, Peer]: ...
 
@@ -62,6 +63,7 @@ class UdpHubLink:
             sock.close()
             raise LinkError(f"udpin:{host}:{port}: cannot bind: {exc.strerror or exc}") from exc
         self._sock: socket.socket | None = sock
+        self.datagram = True
         self._peers: dict[tuple[str, int], float] = {}  # address -> last heard (monotonic)
         self._peer_timeout_s = peer_timeout_s
         self.dropped_peers = 0
@@ -136,6 +138,7 @@ class SingleLink:
     def __init__(self, spec: LinkSpec) -> None:
         self._link = ReconnectingLink(spec)
         self.name = str(spec)
+        self.datagram = spec.kind in ("udpin", "udpout")
 
     def receive(self, timeout_s: float) -> tuple[bytes, Peer]:
         return self._link.read(timeout_s), None
