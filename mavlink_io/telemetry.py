@@ -1,0 +1,150 @@
+"""Autopilot telemetry into PoseSamples and a GlobalOrigin.
+
+``PoseAssembler`` joins ATTITUDE and LOCAL_POSITION_NED, which arrive separately:
+each message yields a PoseSample at its own boot time, completed with the latest of
+the other kind if that is recent (``max_gap_s``); a position is carried forward by
+its velocity to the attitude's time. Boot times map onto the companion's monotonic
+clock through a ``BootClock``.
+
+``OriginTracker`` keeps the EKF origin, by preference from GPS_GLOBAL_ORIGIN (the
+origin itself), else from HOME_POSITION (home minus home's local position), else
+from GLOBAL_POSITION_INT minus LOCAL_POSITION_NED at the same boot time. 0/0 is
+never an origin.
+"""
+
+from __future__ import annotations
+
+import threading
+
+from fusion.types import GlobalOrigin, PoseSample
+from mavlink_io import convert
+from mavlink_io.clock import BootClock
+from mavlink_io.codec import MavMessage
+
+SOURCE_GPS_GLOBAL_ORIGIN = 3
+SOURCE_HOME_POSITION = 2
+SOURCE_DERIVED = 1
+_SAME_INSTANT_S = 0.02  # GLOBAL_POSITION_INT and LOCAL_POSITION_NED of one EKF step
+
+
+class PoseAssembler:
+    """Builds PoseSamples from ATTITUDE and LOCAL_POSITION_NED (one thread)."""
+
+    def __init__(self, clock: BootClock, max_gap_s: float = 0.5) -> None:
+        self._clock = clock
+        self._max_gap_s = max_gap_s
+        self._attitude: convert.AttitudeFields | None = None
+        self._position: convert.LocalPositionFields | None = None
+
+    @property
+    def latest_position(self) -> convert.LocalPositionFields | None:
+        return self._position
+
+    def reset(self) -> None:
+        self._attitude = None
+        self._position = None
+
+    def on_attitude(self, msg: MavMessage) -> PoseSample | None:
+        att = convert.attitude(msg)
+        if att is None:
+            return None
+        self._attitude = att
+        pos = self._position
+        if pos is None or abs(att.t_boot_s - pos.t_boot_s) > self._max_gap_s:
+            return None
+        dt = att.t_boot_s - pos.t_boot_s
+        return self._sample(
+            att,
+            pos,
+            att.t_boot_s,
+            (
+                pos.north_m + pos.vn_m_s * dt,
+                pos.east_m + pos.ve_m_s * dt,
+                pos.down_m + pos.vd_m_s * dt,
+            ),
+        )
+
+    def on_local_position(self, msg: MavMessage) -> PoseSample | None:
+        pos = convert.local_position(msg)
+        if pos is None:
+            return None
+        self._position = pos
+        att = self._attitude
+        if att is None or abs(att.t_boot_s - pos.t_boot_s) > self._max_gap_s:
+            return None
+        return self._sample(att, pos, pos.t_boot_s, (pos.north_m, pos.east_m, pos.down_m))
+
+    def _sample(
+        self,
+        att: convert.AttitudeFields,
+        pos: convert.LocalPositionFields,
+        t_boot_s: float,
+        ned: tuple[float, float, float],
+    ) -> PoseSample | None:
+        if not self._clock.synced:
+            return None
+        return PoseSample(
+            t_boot_s=t_boot_s,
+            t_mono_s=self._clock.to_mono(t_boot_s),
+            north_m=ned[0],
+            east_m=ned[1],
+            down_m=ned[2],
+            roll_rad=att.roll_rad,
+            pitch_rad=att.pitch_rad,
+            yaw_rad=att.yaw_rad,
+            vn_m_s=pos.vn_m_s,
+            ve_m_s=pos.ve_m_s,
+            vd_m_s=pos.vd_m_s,
+        )
+
+
+class OriginTracker:
+    """The best-known EKF origin. Thread-safe reads."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._origin: GlobalOrigin | None = None
+        self._source = 0
+        self._global: convert.GlobalPositionFields | None = None
+        self.changes = 0
+
+    @property
+    def origin(self) -> GlobalOrigin | None:
+        with self._lock:
+            return self._origin
+
+    def reset(self) -> None:
+        with self._lock:
+            self._origin = None
+            self._source = 0
+            self._global = None
+
+    def _offer(self, origin: GlobalOrigin | None, source: int) -> bool:
+        if origin is None:
+            return False
+        with self._lock:
+            if source < self._source or (source == self._source == SOURCE_DERIVED):
+                return False
+            changed = origin != self._origin
+            self._origin = origin
+            self._source = source
+            if changed:
+                self.changes += 1
+            return changed
+
+    def on_gps_global_origin(self, msg: MavMessage) -> bool:
+        """True when the origin changed."""
+        return self._offer(convert.origin_from_gps_global_origin(msg), SOURCE_GPS_GLOBAL_ORIGIN)
+
+    def on_home_position(self, msg: MavMessage) -> bool:
+        return self._offer(convert.origin_from_home_position(msg), SOURCE_HOME_POSITION)
+
+    def on_global_position(self, msg: MavMessage) -> None:
+        self._global = convert.global_position(msg)
+
+    def on_local_position(self, local: convert.LocalPositionFields | None) -> bool:
+        """Derive an origin when a global and a local position describe one instant."""
+        glob = self._global
+        if local is None or glob is None or abs(glob.t_boot_s - local.t_boot_s) > _SAME_INSTANT_S:
+            return False
+        return self._offer(convert.origin_from_global_and_local(glob, local), SOURCE_DERIVED)

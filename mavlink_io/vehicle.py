@@ -1,0 +1,484 @@
+"""The companion's side of the vehicle link: identity, streams, pose, health.
+
+``VehicleLink`` owns a Link and one reader thread. The thread reads and decodes the
+link, and on the same loop (every ``_TICK_S`` at most) sends our HEARTBEAT, checks
+the autopilot's heartbeat and retries stream requests, so a stalled transport can
+delay but never stop it.
+
+Identity: the vehicle's system ID is learned from the autopilot's HEARTBEAT
+(component 1, a MAV_TYPE that is neither a GCS nor an onboard controller, an
+autopilot other than MAV_AUTOPILOT_INVALID), unless ``system_id`` is configured. We
+send as (vehicle sysid, ``component_id``), and our HEARTBEAT at 1 Hz says
+MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID and the health callback's
+MAV_STATE. Nothing is sent before the sysid is known (QGC would drop it anyway).
+
+Streams: on the first heartbeat, after a link loss and after an autopilot reboot
+(its boot time jumps backwards), ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT,
+GPS_GLOBAL_ORIGIN and HOME_POSITION are requested with MAV_CMD_SET_MESSAGE_INTERVAL.
+If no COMMAND_ACK accepts it within ``ack_timeout_s`` (twice), or it is refused, the
+old REQUEST_DATA_STREAM is used instead.
+
+Messages for us: RESCUE_ACK and RESCUE_OPERATOR_ACTION addressed to our
+(sysid, component) or broadcast, directly or inside our TUNNEL, go to ``on_dialect``
+(called on the reader thread) or, without one, to the ``inbox`` queue.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from fusion.pose import PoseHistory
+from fusion.types import GlobalOrigin, PoseSample
+from mavlink_io import tunnel
+from mavlink_io.clock import BootClock
+from mavlink_io.codec import Codec, MavMessage
+from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID
+from mavlink_io.errors import LinkError, LinkTimeout
+from mavlink_io.link import Link
+from mavlink_io.telemetry import OriginTracker, PoseAssembler
+from mavlink_io.tlog import TlogWriter
+
+log = logging.getLogger(__name__)
+
+MAV_TYPE_GCS = 6
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_ACTIVE = 4
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_RESULT_ACCEPTED = 0
+AUTOPILOT_COMPONENT = 1
+MSG_ATTITUDE = 30
+MSG_LOCAL_POSITION_NED = 32
+MSG_GLOBAL_POSITION_INT = 33
+MSG_GPS_GLOBAL_ORIGIN = 49
+MSG_HOME_POSITION = 242
+# REQUEST_DATA_STREAM groups (MAV_DATA_STREAM): EXTRA1 carries ATTITUDE, POSITION
+# carries LOCAL_POSITION_NED and GLOBAL_POSITION_INT on ArduPilot.
+MAV_DATA_STREAM_POSITION = 6
+MAV_DATA_STREAM_EXTRA1 = 10
+
+_TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
+_DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
+_INBOX_MAX = 1000
+
+
+@dataclass(frozen=True)
+class VehicleSettings:
+    """What VehicleLink needs from the [vehicle] config section (same field names)."""
+
+    system_id: int = 0  # 0: learn from the autopilot's HEARTBEAT
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    heartbeat_timeout_s: float = 3.0
+    heartbeat_period_s: float = 1.0
+    attitude_rate_hz: float = 20.0
+    local_position_rate_hz: float = 20.0
+    global_position_rate_hz: float = 5.0
+    origin_rate_hz: float = 0.2  # GPS_GLOBAL_ORIGIN and HOME_POSITION
+    ack_timeout_s: float = 1.0
+    pose_history_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.system_id <= 255 or not 1 <= self.component_id <= 255:
+            raise ValueError("system_id must be 0..255 and component_id 1..255")
+        for name in ("heartbeat_timeout_s", "heartbeat_period_s", "ack_timeout_s"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0")
+
+
+@dataclass
+class VehicleCounters:
+    messages_in: int = 0
+    messages_out: int = 0
+    sends_dropped: int = 0  # before the sysid is known, or the link refused
+    poses: int = 0
+    stream_requests: int = 0
+    link_losses: int = 0
+    reboots: int = 0
+    inbox_dropped: int = 0
+    handler_errors: int = 0
+    read_errors: int = 0
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """A consistent snapshot for status reports."""
+
+    connected: bool
+    sysid: int
+    origin: GlobalOrigin | None
+    clock_synced: bool
+    clock_offset_s: float | None
+    stream_method: str  # "", "interval" or "data_stream"
+    last_pose: PoseSample | None
+    counters: dict[str, int] = field(default_factory=dict)
+
+
+class VehicleLink:
+    """Talks to the autopilot over one Link from one reader thread."""
+
+    def __init__(
+        self,
+        link: Link,
+        settings: VehicleSettings | None = None,
+        *,
+        codec: Codec | None = None,
+        pose_history: PoseHistory | None = None,
+        health: Callable[[], int] = lambda: MAV_STATE_ACTIVE,
+        tlog: TlogWriter | None = None,
+        on_dialect: Callable[[MavMessage], None] | None = None,
+        on_message: Callable[[MavMessage], None] | None = None,
+    ) -> None:
+        self.settings = settings or VehicleSettings()
+        s = self.settings
+        self.link = link
+        self.codec = codec or Codec(s.system_id or 1, s.component_id)
+        self.poses = pose_history or PoseHistory(s.pose_history_s)
+        self.clock = BootClock()
+        self.origins = OriginTracker()
+        self.inbox: queue.Queue[MavMessage] = queue.Queue(_INBOX_MAX)
+        self.counters = VehicleCounters()
+        self._assembler = PoseAssembler(self.clock)
+        self._health = health
+        self._tlog = tlog
+        self._on_dialect = on_dialect
+        self._on_message = on_message
+        self._sysid = s.system_id
+        self._lock = threading.Lock()
+        self._connected = threading.Event()
+        self._changed = threading.Condition()  # notified after every reader-loop pass
+        self._stop = threading.Event()
+        self._last_heartbeat_s = 0.0
+        self._next_heartbeat_s = 0.0
+        self._stream_method = ""
+        self._request_sent_s: float | None = None
+        self._request_attempts = 0
+        self._thread = threading.Thread(target=self._run, name="vehicle-link", daemon=True)
+        self._thread.start()
+
+    # ----------------------------------------------------------------- public API
+
+    @property
+    def sysid(self) -> int:
+        """The vehicle's system ID (0 until learned)."""
+        return self._sysid
+
+    @property
+    def connected(self) -> bool:
+        return self._connected.is_set()
+
+    @property
+    def origin(self) -> GlobalOrigin | None:
+        return self.origins.origin
+
+    def wait_connected(self, timeout_s: float) -> int:
+        """Block until the autopilot's heartbeat is heard; its sysid, or LinkTimeout."""
+        if not self._connected.wait(timeout_s):
+            raise LinkTimeout(f"{self.link.name}: no autopilot heartbeat within {timeout_s} s")
+        return self._sysid
+
+    def wait_for_state(
+        self, predicate: Callable[[VehicleState], bool], timeout_s: float
+    ) -> VehicleState:
+        """Block until ``predicate(state())`` holds; the state, or LinkTimeout."""
+        end = time.monotonic() + timeout_s
+        with self._changed:
+            while True:
+                state = self.state()
+                if predicate(state):
+                    return state
+                remaining = end - time.monotonic()
+                if remaining <= 0:
+                    raise LinkTimeout(f"{self.link.name}: state not reached within {timeout_s} s")
+                self._changed.wait(remaining)
+
+    def state(self) -> VehicleState:
+        with self._lock:
+            method = self._stream_method
+        return VehicleState(
+            connected=self.connected,
+            sysid=self._sysid,
+            origin=self.origins.origin,
+            clock_synced=self.clock.synced,
+            clock_offset_s=self.clock.offset_s if self.clock.synced else None,
+            stream_method=method,
+            last_pose=self.poses.latest(),
+            counters=dict(vars(self.counters)),
+        )
+
+    def send(self, msg: MavMessage) -> bool:
+        """Encode and send as (vehicle sysid, our component); False if dropped."""
+        if self._sysid == 0:
+            self.counters.sends_dropped += 1
+            return False
+        data = self.codec.encode(msg)
+        try:
+            self.link.write(data)
+        except LinkError as exc:
+            self.counters.sends_dropped += 1
+            log.debug("%s: send failed: %s", self.link.name, exc)
+            return False
+        self.counters.messages_out += 1
+        if self._tlog is not None:
+            self._tlog.write(data)
+        return True
+
+    def send_tunnel(self, msg: MavMessage) -> bool:
+        """Send a dialect message inside a TUNNEL (routed by the autopilot to the GCS)."""
+        if self._sysid == 0:
+            self.counters.sends_dropped += 1
+            return False
+        return self.send(tunnel.wrap(self.codec, msg))
+
+    def close(self) -> None:
+        """Stop the reader thread and close the link; safe twice."""
+        self._stop.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=5.0)
+        self.link.close()
+
+    def __enter__(self) -> VehicleLink:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    # ----------------------------------------------------------------- the loop
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.link.read(_TICK_S)
+            except LinkError as exc:
+                if self._stop.is_set():
+                    break
+                self.counters.read_errors += 1
+                log.warning("%s: %s", self.link.name, exc)
+                self._stop.wait(0.5)  # a non-reconnecting link that broke: do not spin
+                data = b""
+            now = time.monotonic()
+            if data:
+                for msg in self.codec.feed(data):
+                    self._dispatch(msg, now)
+            self._tick(time.monotonic())
+            with self._changed:
+                self._changed.notify_all()
+
+    def _dispatch(self, msg: MavMessage, now: float) -> None:
+        self.counters.messages_in += 1
+        if self._tlog is not None:
+            self._tlog.write(bytes(msg.get_msgbuf()))
+        try:
+            self._handle(msg, now)
+            if self._on_message is not None:
+                self._on_message(msg)
+        except Exception:  # a bug in one handler must not stop the vehicle link
+            self.counters.handler_errors += 1
+            log.exception("handling %s failed", msg.get_type())
+
+    def _tick(self, now: float) -> None:
+        if (
+            self._connected.is_set()
+            and now - self._last_heartbeat_s > self.settings.heartbeat_timeout_s
+        ):
+            self._connected.clear()
+            self.counters.link_losses += 1
+            log.warning(
+                "%s: no autopilot heartbeat for %.1f s: link lost",
+                self.link.name,
+                now - self._last_heartbeat_s,
+            )
+        if self._sysid and now >= self._next_heartbeat_s:
+            self._next_heartbeat_s = now + self.settings.heartbeat_period_s
+            self._send_heartbeat()
+        sent = self._request_sent_s
+        if sent is not None and now - sent > self.settings.ack_timeout_s:
+            self._on_request_timeout(now)
+
+    # ----------------------------------------------------------------- handlers
+
+    def _handle(self, msg: MavMessage, now: float) -> None:
+        msg_id = msg.get_msgId()
+        if msg_id == 0:  # HEARTBEAT
+            self._on_heartbeat(msg, now)
+            return
+        if msg_id in _DIALECT_IDS:
+            self._deliver(msg)
+            return
+        if tunnel.is_ours(msg):
+            inner = tunnel.unpack_tunnel(msg, self.codec)
+            if inner is not None and inner.get_msgId() in _DIALECT_IDS:
+                self._deliver(inner)
+            return
+        if (msg.get_srcSystem(), msg.get_srcComponent()) != (self._sysid, AUTOPILOT_COMPONENT):
+            return
+        if msg_id == MSG_ATTITUDE:
+            self._observe_clock(msg.time_boot_ms, now)
+            self._add_pose(self._assembler.on_attitude(msg))
+        elif msg_id == MSG_LOCAL_POSITION_NED:
+            self._observe_clock(msg.time_boot_ms, now)
+            self._add_pose(self._assembler.on_local_position(msg))
+            self.origins.on_local_position(self._assembler.latest_position)
+        elif msg_id == MSG_GLOBAL_POSITION_INT:
+            self.origins.on_global_position(msg)
+        elif msg_id == MSG_GPS_GLOBAL_ORIGIN:
+            if self.origins.on_gps_global_origin(msg):
+                log.info("EKF origin: %s", self.origins.origin)
+        elif msg_id == MSG_HOME_POSITION:
+            self.origins.on_home_position(msg)
+        elif msg.get_type() == "COMMAND_ACK" and msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._on_interval_ack(msg)
+
+    def _is_autopilot_heartbeat(self, msg: MavMessage) -> bool:
+        if msg.get_srcComponent() != AUTOPILOT_COMPONENT:
+            return False
+        if msg.type in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
+            return False
+        if msg.autopilot == MAV_AUTOPILOT_INVALID:
+            return False
+        return self.settings.system_id in (0, msg.get_srcSystem())
+
+    def _on_heartbeat(self, msg: MavMessage, now: float) -> None:
+        if not self._is_autopilot_heartbeat(msg):
+            return
+        sysid = msg.get_srcSystem()
+        if self._sysid not in (0, sysid):
+            return  # another vehicle on the same link: we follow the first one
+        if self._sysid == 0:
+            self._sysid = sysid
+            self.codec.src_system = sysid
+            log.info("%s: vehicle system ID %d", self.link.name, sysid)
+        self._last_heartbeat_s = now
+        if not self._connected.is_set():
+            log.info("%s: autopilot heartbeat heard", self.link.name)
+            self._connected.set()
+            self._request_streams(now, fresh=True)
+
+    def _observe_clock(self, time_boot_ms: int, now: float) -> None:
+        if self.clock.observe(time_boot_ms / 1000.0, now):
+            self.counters.reboots += 1
+            log.warning("%s: autopilot rebooted (boot time went backwards)", self.link.name)
+            self.poses.clear()
+            self._assembler.reset()
+            self.origins.reset()
+            self._request_streams(now, fresh=True)
+
+    def _add_pose(self, sample: PoseSample | None) -> None:
+        if sample is not None:
+            self.poses.add(sample)
+            self.counters.poses += 1
+
+    def _deliver(self, msg: MavMessage) -> None:
+        target_sys = getattr(msg, "target_system", 0)
+        target_comp = getattr(msg, "target_component", 0)
+        if target_sys not in (0, self._sysid) or target_comp not in (
+            0,
+            self.codec.src_component,
+        ):
+            return
+        if self._on_dialect is not None:
+            self._on_dialect(msg)
+            return
+        try:
+            self.inbox.put_nowait(msg)
+        except queue.Full:
+            self.counters.inbox_dropped += 1
+
+    # ----------------------------------------------------------------- outgoing
+
+    def _send_heartbeat(self) -> None:
+        m = self.codec.module
+        try:
+            status = int(self._health())
+        except Exception:  # the health callback is someone else's code
+            log.exception("health callback failed")
+            status = 5  # MAV_STATE_CRITICAL
+        self.send(
+            m.MAVLink_heartbeat_message(
+                MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, status, 3
+            )
+        )
+
+    def _stream_rates(self) -> list[tuple[int, float]]:
+        s = self.settings
+        return [
+            (MSG_ATTITUDE, s.attitude_rate_hz),
+            (MSG_LOCAL_POSITION_NED, s.local_position_rate_hz),
+            (MSG_GLOBAL_POSITION_INT, s.global_position_rate_hz),
+            (MSG_GPS_GLOBAL_ORIGIN, s.origin_rate_hz),
+            (MSG_HOME_POSITION, s.origin_rate_hz),
+        ]
+
+    def _request_streams(self, now: float, fresh: bool) -> None:
+        if fresh:
+            self._request_attempts = 0
+            with self._lock:
+                if self._stream_method == "data_stream":
+                    self._send_data_stream_requests()
+                    return
+                self._stream_method = ""
+        m = self.codec.module
+        confirmation = min(self._request_attempts, 255)  # 0 first, then 1, 2 on retries
+        for msg_id, rate_hz in self._stream_rates():
+            interval_us = round(1e6 / rate_hz) if rate_hz > 0 else -1  # -1: stop it
+            self.send(
+                m.MAVLink_command_long_message(
+                    self._sysid,
+                    AUTOPILOT_COMPONENT,
+                    MAV_CMD_SET_MESSAGE_INTERVAL,
+                    confirmation,
+                    float(msg_id),
+                    float(interval_us),
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                )
+            )
+        self.counters.stream_requests += 1
+        self._request_attempts += 1
+        self._request_sent_s = now
+
+    def _on_interval_ack(self, msg: MavMessage) -> None:
+        if self._request_sent_s is None and self._stream_method:
+            return
+        if msg.result == MAV_RESULT_ACCEPTED:
+            with self._lock:
+                self._stream_method = "interval"
+            self._request_sent_s = None
+            return
+        log.info("SET_MESSAGE_INTERVAL refused (result %d): REQUEST_DATA_STREAM", msg.result)
+        self._fall_back()
+
+    def _on_request_timeout(self, now: float) -> None:
+        if self._request_attempts < 2:
+            self._request_streams(now, fresh=False)
+            return
+        log.info("no COMMAND_ACK to SET_MESSAGE_INTERVAL: falling back to REQUEST_DATA_STREAM")
+        self._fall_back()
+
+    def _fall_back(self) -> None:
+        self._request_sent_s = None
+        with self._lock:
+            self._stream_method = "data_stream"
+            self._send_data_stream_requests()
+
+    def _send_data_stream_requests(self) -> None:
+        m = self.codec.module
+        s = self.settings
+        position_hz = max(s.local_position_rate_hz, s.global_position_rate_hz)
+        for stream_id, rate_hz in (
+            (MAV_DATA_STREAM_EXTRA1, s.attitude_rate_hz),
+            (MAV_DATA_STREAM_POSITION, position_hz),
+        ):
+            self.send(
+                m.MAVLink_request_data_stream_message(
+                    self._sysid, AUTOPILOT_COMPONENT, stream_id, max(1, round(rate_hz)), 1
+                )
+            )
+        self.counters.stream_requests += 1
