@@ -140,7 +140,8 @@ class Outbox:
         self._store.put(key[0], key[1], frame)
         now = self._clock()
         with self._lock:
-            self._schedule[key] = _Schedule(msg, now + self._initial_s, self._initial_s, 1)
+            next_backoff_s = min(2.0 * self._initial_s, self._max_s)
+            self._schedule[key] = _Schedule(msg, now + self._initial_s, next_backoff_s, 1)
             self.counters.submitted += 1
             self.counters.sent += 1
         self._send(msg)
