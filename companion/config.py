@@ -155,6 +155,10 @@ class DetectorConfig:
     dnn_input_px: int = 640  # square network input
     dnn_person_class_ids: tuple[int, ...] = (0,)
     dnn_nms_iou: float = 0.45
+    dnn_output_layout: Literal["auto", "yolov8", "yolov5"] = "auto"  # [1,4+nc,N] | [1,N,5+nc]
+    box_fill_ratio: float = 0.5  # dnn/hog: share of a person's box that is body (visible area)
+    work_width_px: int = 320  # classic: frames are reduced to this width before detection
+    body_silhouette_fill: float = 0.75  # lying adult's silhouette / its length x width rectangle
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_score <= 1.0:
@@ -165,6 +169,14 @@ class DetectorConfig:
             raise ValueError(f"dnn_input_px = {self.dnn_input_px}: must be a multiple of 32, >= 32")
         if not 0.0 < self.dnn_nms_iou <= 1.0:
             raise ValueError(f"dnn_nms_iou = {self.dnn_nms_iou}: must be in (0, 1]")
+        if not 0.0 < self.box_fill_ratio <= 1.0:
+            raise ValueError(f"box_fill_ratio = {self.box_fill_ratio}: must be in (0, 1]")
+        if self.work_width_px < 80:
+            raise ValueError(f"work_width_px = {self.work_width_px}: must be >= 80")
+        if not 0.0 < self.body_silhouette_fill <= 1.0:
+            raise ValueError(
+                f"body_silhouette_fill = {self.body_silhouette_fill}: must be in (0, 1]"
+            )
 
 
 @dataclass(frozen=True)

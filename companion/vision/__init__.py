@@ -1,0 +1,71 @@
+"""Vision: dark-scene enhancement, victim detectors, visibility.
+
+``make_detector(config.detector)`` builds the configured backend (classic, dnn,
+hog), with enhancement inside it when ``enhance = true`` (each backend enhances at
+its own working resolution: cheaper than enhancing the full frame first). Each
+detector's ``detect(image_bgr, geometry, t_mono_s)`` returns one
+``fusion.types.Detection`` per victim; ``visibility.assess(detection, geometry)``
+gives visibility in percent and the urgency class. See docs/VISION.md.
+"""
+
+from __future__ import annotations
+
+from companion.config import DetectorConfig
+from companion.vision.base import (
+    DEFAULT_SILHOUETTE_FILL,
+    Detector,
+    DetectorUnavailable,
+    FrameGeometry,
+    VisionError,
+)
+from companion.vision.enhance import EnhanceParams, Enhancer, enhance
+from companion.vision.visibility import Assessment, assess, urgency, visibility_pct
+
+__all__ = [
+    "DEFAULT_SILHOUETTE_FILL",
+    "Assessment",
+    "Detector",
+    "DetectorUnavailable",
+    "EnhanceParams",
+    "Enhancer",
+    "FrameGeometry",
+    "VisionError",
+    "assess",
+    "enhance",
+    "make_detector",
+    "urgency",
+    "visibility_pct",
+]
+
+
+def make_detector(config: DetectorConfig) -> Detector:
+    """The configured detector; DetectorUnavailable when it cannot be built here."""
+    enhancer = Enhancer() if config.enhance else None
+    if config.backend == "classic":
+        from companion.vision.classic import ClassicDetector, ClassicParams
+
+        params = ClassicParams(work_width_px=config.work_width_px)
+        return ClassicDetector(params, enhancer, config.min_score)
+    if config.backend == "dnn":
+        from companion.vision.dnn import DnnDetector
+
+        if config.dnn_model is None:  # the config rejects this already; say it anyway
+            raise DetectorUnavailable("detector.dnn_model: required with backend = 'dnn'")
+        return DnnDetector(
+            config.dnn_model,
+            input_px=config.dnn_input_px,
+            person_class_ids=config.dnn_person_class_ids,
+            min_score=config.min_score,
+            nms_iou=config.dnn_nms_iou,
+            layout=config.dnn_output_layout,
+            fill_ratio=config.box_fill_ratio,
+            enhancer=enhancer,
+        )
+    from companion.vision.hog import HogDetector
+
+    return HogDetector(
+        min_score=config.min_score,
+        nms_iou=config.dnn_nms_iou,
+        fill_ratio=config.box_fill_ratio,
+        enhancer=enhancer,
+    )

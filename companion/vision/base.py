@@ -1,0 +1,138 @@
+"""The detector interface, its errors, and the per-frame size prior (FrameGeometry).
+
+Exceptions::
+
+    VisionError                 the vision step cannot run as configured
+    +-- DetectorUnavailable     the chosen backend cannot be built here (says why)
+
+A detector turns a BGR frame into ``fusion.types.Detection`` objects, one per
+victim: ``u_px, v_px`` is the centroid of the visible body mask (where a lying body
+touches the floor), ``visible_area_px`` the mask's pixels at the frame's resolution.
+
+``FrameGeometry`` is the camera geometry of one frame reduced to what vision needs:
+how many metres of floor a pixel spans, and how many pixels a whole lying adult
+would cover, at a pixel. Both are None where the pixel does not see the floor
+within range (above the horizon, too near, too far): nothing can be a victim there.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from fusion.types import Detection
+
+if TYPE_CHECKING:
+    from fusion.camera import CameraModel
+    from fusion.params import GeolocationParams
+    from fusion.types import PoseSample
+
+# A lying adult's silhouette covers about this share of its body_length_m x
+# body_width_m bounding rectangle (arms along the body; head, neck and feet narrower
+# than the shoulders). 0.75 of 1.7 m x 0.45 m = 0.57 m^2, close to the 0.5-0.6 m^2
+# projected frontal area of an adult. Visibility is measured against it.
+DEFAULT_SILHOUETTE_FILL = 0.75
+
+_CACHE_CELL_PX = 8  # FrameGeometry answers are cached per 8x8-pixel cell
+
+
+class VisionError(Exception):
+    """The vision step cannot run as configured; the message says why."""
+
+
+class DetectorUnavailable(VisionError):
+    """The configured detector backend is not available in this installation."""
+
+
+class Detector(Protocol):
+    name: str
+
+    def detect(
+        self, image_bgr: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
+    ) -> list[Detection]: ...
+
+
+class FrameGeometry:
+    """Size prior of one frame: metres per pixel and a whole body's area in pixels."""
+
+    def __init__(
+        self,
+        metres_per_px: Callable[[float, float], float | None],
+        expected_body_area_px: Callable[[float, float], float | None],
+    ) -> None:
+        self._mpp = metres_per_px
+        self._area = expected_body_area_px
+        self._cache: dict[tuple[str, int, int], float | None] = {}
+
+    def _cached(
+        self, kind: str, fn: Callable[[float, float], float | None], u: float, v: float
+    ) -> float | None:
+        if not (math.isfinite(u) and math.isfinite(v)):
+            return None
+        key = (kind, int(u) // _CACHE_CELL_PX, int(v) // _CACHE_CELL_PX)
+        if key not in self._cache:
+            value = fn(u, v)
+            self._cache[key] = None if value is None else float(value)
+        return self._cache[key]
+
+    def metres_per_px(self, u_px: float, v_px: float) -> float | None:
+        """Floor metres spanned by one pixel at (u, v); None off the usable floor."""
+        return self._cached("mpp", self._mpp, u_px, v_px)
+
+    def expected_body_area_px(self, u_px: float, v_px: float) -> float | None:
+        """Pixels a whole lying adult centred at (u, v) would cover; None off the floor."""
+        return self._cached("area", self._area, u_px, v_px)
+
+    @classmethod
+    def constant(
+        cls,
+        metres_per_px: float,
+        body_area_m2: float = 1.7 * 0.45 * DEFAULT_SILHOUETTE_FILL,
+        floor_from_v_px: float = 0.0,
+    ) -> FrameGeometry:
+        """The same scale everywhere below image row ``floor_from_v_px`` (tests, tools)."""
+        area_px = body_area_m2 / metres_per_px**2
+
+        def mpp(_u: float, v: float) -> float | None:
+            return metres_per_px if v >= floor_from_v_px else None
+
+        def area(_u: float, v: float) -> float | None:
+            return area_px if v >= floor_from_v_px else None
+
+        return cls(mpp, area)
+
+    @classmethod
+    def from_pose(
+        cls,
+        camera: CameraModel,
+        pose: PoseSample,
+        params: GeolocationParams,
+        silhouette_fill: float = DEFAULT_SILHOUETTE_FILL,
+    ) -> FrameGeometry:
+        """The size prior of a frame taken from ``pose`` (fusion.geolocate's geometry).
+
+        The expected body area is fusion's body rectangle (clipped to the image)
+        times ``silhouette_fill``: visibility compares mask pixels with the
+        silhouette a whole body would show, not with its bounding rectangle.
+        """
+        from fusion.errors import GeolocationRejected
+        from fusion.geolocate import expected_body_area_px, geolocate, ground_sample_distance_m
+
+        def mpp(u: float, v: float) -> float | None:
+            try:
+                return float(ground_sample_distance_m(camera, pose, u, v, params))
+            except GeolocationRejected:
+                return None
+
+        def area(u: float, v: float) -> float | None:
+            try:
+                fix = geolocate(camera, pose, u, v, params)
+                rect_px = expected_body_area_px(camera, pose, fix.north_m, fix.east_m, params)
+            except GeolocationRejected:
+                return None
+            return float(rect_px) * silhouette_fill if rect_px > 0.0 else None
+
+        return cls(mpp, area)
