@@ -101,7 +101,11 @@ class Renderer:
         self.size = (k.width_px, k.height_px)
         u, v = np.meshgrid(np.arange(k.width_px, dtype=float), np.arange(k.height_px, dtype=float))
         rays = camera.rays_camera(np.column_stack([u.ravel(), v.ravel()]))
-        self._rays_cam = rays.astype(np.float32)  # (H*W, 3), distortion removed
+        # Unit rays in the camera frame, distortion removed: three (H, W) components.
+        self._rays_cam = tuple(
+            np.ascontiguousarray(rays[:, i].reshape(k.height_px, k.width_px), np.float32)
+            for i in range(3)
+        )
         self._focal_px = 0.5 * (k.fx_px + k.fy_px)
         self._seed = seed
         self._count = 0
@@ -119,17 +123,20 @@ class Renderer:
         centre, r_nc = self.camera.camera_pose_ned(
             np.array([pose.north_m, pose.east_m, pose.down_m]), r_nb
         )
-        shape = (self.size[1], self.size[0])
-        rays = self._rays_cam @ r_nc.T.astype(np.float32)
-        dz = rays[:, 2].reshape(shape)  # unit rays: the sine of the angle below the horizon
+        # Rays in NED, component by component (cheaper than a BLAS call for 3x3).
+        r = r_nc.astype(np.float32)
+        cx, cy, cz = self._rays_cam
+        dn = cx * r[0, 0] + cy * r[0, 1] + cz * r[0, 2]
+        de = cx * r[1, 0] + cy * r[1, 1] + cz * r[1, 2]
+        dz = cx * r[2, 0] + cy * r[2, 1] + cz * r[2, 2]  # sine of the angle below the horizon
         height = -float(centre[2])  # camera height above the floor (down = 0)
         hits = dz > 1e-4
         if height <= 0:
             hits[:] = False
-        t = np.full(shape, np.inf, np.float32)
+        t = np.full(dz.shape, np.inf, np.float32)
         np.divide(np.float32(height), dz, out=t, where=hits)
-        north = rays[:, 0].reshape(shape) * t
-        east = rays[:, 1].reshape(shape) * t
+        north = dn * t
+        east = de * t
         north += np.float32(centre[0])
         east += np.float32(centre[1])
         north[~hits] = -1e6

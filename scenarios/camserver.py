@@ -1,0 +1,172 @@
+"""The simulated camera: renders frames from the rover's true pose and serves them over TCP.
+
+Wire format, per frame (the companion's "sim" camera source reads it):
+
+    uint32 big-endian N     length of what follows
+    uint64 big-endian       capture time, Unix microseconds (the rover's clock:
+                            time.time() when time_scale is 1)
+    N - 8 bytes             JPEG
+
+Every connected client gets every frame it can take: each has a small queue
+(``queue_frames``); when it is full the oldest frame is dropped, so a slow client
+sees fewer, fresh frames and the server's memory stays bounded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+
+from mavlink_io.convert import usec_from_unix_s
+from scenarios.motion import TruePose
+from scenarios.render import Renderer, encode_jpeg
+
+log = logging.getLogger(__name__)
+
+HEADER = struct.Struct(">IQ")  # length of the rest, capture time in Unix µs
+
+
+def pack_frame(t_unix_s: float, jpeg: bytes) -> bytes:
+    return HEADER.pack(len(jpeg) + 8, usec_from_unix_s(t_unix_s)) + jpeg
+
+
+class _Client:
+    def __init__(self, sock: socket.socket, addr: object, queue_frames: int) -> None:
+        self.sock, self.addr = sock, addr
+        self.frames: queue.Queue[bytes | None] = queue.Queue(maxsize=queue_frames)
+        self.dropped = 0
+        self.sent = 0
+
+    def offer(self, packet: bytes) -> None:
+        while True:
+            try:
+                self.frames.put_nowait(packet)
+                return
+            except queue.Full:
+                with contextlib.suppress(queue.Empty):
+                    self.frames.get_nowait()
+                    self.dropped += 1
+
+
+class CameraServer:
+    """Renders at ``fps`` and sends to all clients (see the module docstring)."""
+
+    def __init__(
+        self,
+        renderer: Renderer,
+        pose_now: Callable[[], tuple[TruePose, float]],
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        fps: float = 10.0,
+        jpeg_quality: int = 85,
+        queue_frames: int = 2,
+        time_scale: float = 1.0,
+    ) -> None:
+        """``pose_now()`` returns the true pose now and its capture time (Unix s)."""
+        if fps <= 0:
+            raise ValueError(f"fps must be positive, got {fps}")
+        self.renderer = renderer
+        self.pose_now = pose_now
+        self.fps = fps
+        self.jpeg_quality = jpeg_quality
+        self.queue_frames = queue_frames
+        self.time_scale = time_scale
+        self._listener = socket.create_server((host, port))
+        self._listener.settimeout(0.2)
+        self._clients: list[_Client] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.frames_rendered = 0
+
+    @property
+    def address(self) -> tuple[str, int]:
+        host, port = self._listener.getsockname()[:2]
+        return str(host), int(port)
+
+    def start(self) -> CameraServer:
+        for target, name in ((self._accept, "cam-accept"), (self._render, "cam-render")):
+            t = threading.Thread(target=target, name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def __enter__(self) -> CameraServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop rendering, disconnect clients; safe to call twice."""
+        self._stop.set()
+        with self._lock:
+            clients = list(self._clients)
+        for c in clients:
+            c.offer(b"")  # wakes the sender, which then sees the stop flag
+        for t in self._threads:
+            t.join(timeout=2.0)
+        self._threads.clear()
+        with contextlib.suppress(OSError):
+            self._listener.close()
+
+    def client_stats(self) -> list[tuple[int, int]]:
+        """(sent, dropped) per connected client."""
+        with self._lock:
+            return [(c.sent, c.dropped) for c in self._clients]
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            try:
+                sock, addr = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            client = _Client(sock, addr, self.queue_frames)
+            with self._lock:
+                self._clients.append(client)
+            t = threading.Thread(target=self._sender, args=(client,), name="cam-send", daemon=True)
+            t.start()
+            self._threads.append(t)
+            log.info("camera client %s connected", addr)
+
+    def _sender(self, client: _Client) -> None:
+        try:
+            while not self._stop.is_set():
+                packet = client.frames.get()
+                if not packet:
+                    continue
+                client.sock.sendall(packet)
+                client.sent += 1
+        except OSError as exc:
+            log.info("camera client %s gone: %s", client.addr, exc)
+        finally:
+            with self._lock:
+                if client in self._clients:
+                    self._clients.remove(client)
+            with contextlib.suppress(OSError):
+                client.sock.close()
+
+    def _render(self) -> None:
+        period_s = 1.0 / self.fps / self.time_scale
+        while not self._stop.is_set():
+            started = time.monotonic()
+            pose, t_unix = self.pose_now()
+            result = self.renderer.render(pose)
+            packet = pack_frame(t_unix, encode_jpeg(result.image, self.jpeg_quality))
+            self.frames_rendered += 1
+            with self._lock:
+                clients = list(self._clients)
+            for c in clients:
+                c.offer(packet)
+            # Wait out the rest of the frame period (an Event wait: close() ends it at once).
+            self._stop.wait(max(0.0, period_s - (time.monotonic() - started)))

@@ -1,0 +1,194 @@
+"""``rescue-sim``: the simulated warehouse, rover and camera.
+
+    rescue-sim world  (--preset P | --seed S | --world W) [--out W.toml]
+    rescue-sim record (--preset P | --seed S | --world W) --out DIR [--duration-s T]
+    rescue-sim score  --truth DIR/ground_truth.json --victims REPORT.json [--json]
+    rescue-sim sheet  (--preset P | --seed S | --world W) --out sheet.png
+    rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
+                      [--camera-port PORT] [--time-scale X]
+
+Exit status: 0 success, 1 runtime failure, 2 bad input or usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+
+from mavlink_io.errors import LinkError
+from scenarios.world import PRESETS, World, WorldError
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+
+log = logging.getLogger(__name__)
+
+
+def _world_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+    g = p.add_mutually_exclusive_group(required=required)
+    g.add_argument("--preset", choices=PRESETS, help="one of the seven scenarios")
+    g.add_argument("--seed", type=int, help="a generated mixed world")
+    g.add_argument("--world", type=Path, help="a world TOML file")
+
+
+def _world(args: argparse.Namespace) -> World:
+    from scenarios.world import generate_world, load_world, preset
+
+    if args.preset:
+        return preset(args.preset)
+    if args.seed is not None:
+        return generate_world(args.seed)
+    return load_world(args.world)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rescue-sim", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    w = sub.add_parser("world", help="print or save a world and its victims' ground truth")
+    _world_args(w)
+    w.add_argument("--out", type=Path, help="write the world TOML here")
+
+    r = sub.add_parser("record", help="record a mission (tlog, frames, camera, truth)")
+    _world_args(r)
+    r.add_argument("--out", type=Path, required=True, help="output directory")
+    r.add_argument("--duration-s", type=float, help="default: the whole route")
+    r.add_argument("--fps", type=float, default=10.0)
+    r.add_argument(
+        "--start-unix-s", type=float, help="wall time of simulation start (default: now)"
+    )
+
+    s = sub.add_parser("score", help="score a victim report against the ground truth")
+    s.add_argument("--truth", type=Path, required=True, help="ground_truth.json")
+    s.add_argument("--victims", type=Path, required=True, help="REPORT.json")
+    s.add_argument("--gate-m", type=float, default=1.0)
+    s.add_argument("--json", action="store_true", help="print the figures as JSON")
+
+    c = sub.add_parser("sheet", help="a PNG contact sheet: map, route, victims, frames")
+    _world_args(c)
+    c.add_argument("--out", type=Path, required=True)
+
+    v = sub.add_parser("rover", help="run the simulated rover (and camera) live")
+    _world_args(v)
+    v.add_argument("--link", action="append", required=True, help="udpin:H:P, tcpin:H:P, ..., pty")
+    v.add_argument("--camera-port", type=int, help="serve camera frames on this TCP port")
+    v.add_argument("--camera-host", default="127.0.0.1")
+    v.add_argument("--time-scale", type=float, default=1.0)
+    v.add_argument("--speed-m-s", type=float, default=0.4)
+    return parser
+
+
+def _cmd_world(args: argparse.Namespace, world: World) -> int:
+    from scenarios.world import save_world
+
+    if args.out:
+        save_world(world, args.out)
+        print(f"wrote {args.out}")
+    print(
+        f"world '{world.name}' seed {world.seed}, {len(world.victims)} victims, {len(world.debris)} debris"
+    )
+    for vic in world.victims:
+        print(
+            f"  victim {vic.victim_id}: north {vic.north_m:.2f} m east {vic.east_m:.2f} m, "
+            f"visibility {vic.visibility_pct:.1f} % -> {vic.urgency.name}"
+        )
+    return EXIT_OK
+
+
+def _cmd_record(args: argparse.Namespace, world: World) -> int:
+    from scenarios.record import record
+
+    res = record(
+        world, args.out, duration_s=args.duration_s, fps=args.fps, start_unix_s=args.start_unix_s
+    )
+    print(
+        f"recorded {res.duration_s:.1f} s: {res.frames} frames, {res.packets} packets -> {res.out_dir}"
+    )
+    return EXIT_OK
+
+
+def _cmd_score(args: argparse.Namespace) -> int:
+    from scenarios.score import format_score, load_report, load_truth, score
+
+    result = score(load_truth(args.truth), load_report(args.victims), args.gate_m)
+    print(json.dumps(result.as_dict(), indent=1) if args.json else format_score(result))
+    return EXIT_OK
+
+
+def _cmd_sheet(args: argparse.Namespace, world: World) -> int:
+    from scenarios.sheet import write_sheet
+
+    print(f"wrote {write_sheet(world, args.out)}")
+    return EXIT_OK
+
+
+def _cmd_rover(args: argparse.Namespace, world: World) -> int:
+    from scenarios.camserver import CameraServer
+    from scenarios.render import Renderer
+    from scenarios.rover import SimRover
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    rover = SimRover(world, args.link, time_scale=args.time_scale, speed_m_s=args.speed_m_s)
+    cam = None
+    try:
+        rover.start()
+        for i, spec in enumerate(args.link):
+            where = rover.pty_path(i) if spec == "pty" else spec
+            print(f"rover link {i}: {where}", flush=True)
+        if args.camera_port is not None:
+            cam = CameraServer(
+                Renderer(world),
+                rover.camera_pose,
+                host=args.camera_host,
+                port=args.camera_port,
+                time_scale=args.time_scale,
+            ).start()
+            print(f"camera: tcp {cam.address[0]}:{cam.address[1]}", flush=True)
+        stop.wait()
+    finally:
+        if cam is not None:
+            cam.close()
+        rover.close()
+    return EXIT_OK
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    from scenarios.score import ScoreInputError
+
+    try:
+        if args.command == "score":
+            return _cmd_score(args)
+        world = _world(args)
+        handler = {
+            "world": _cmd_world,
+            "record": _cmd_record,
+            "sheet": _cmd_sheet,
+            "rover": _cmd_rover,
+        }[args.command]
+        return handler(args, world)
+    except (WorldError, ScoreInputError) as exc:
+        print(f"rescue-sim: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except (LinkError, OSError) as exc:
+        print(f"rescue-sim: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    sys.exit(main())
