@@ -123,8 +123,8 @@ class SimRobot:
         t = time.time() if time_unix_s is None else time_unix_s
         return wire.report_to_msg(self.codec, report, seq, t)
 
-    def receive(self, timeout_s: float) -> list[Received]:
-        """Messages for this robot arriving within ``timeout_s`` (at least one, or [])."""
+    def receive(self, timeout_s: float, *, any_target: bool = False) -> list[Received]:
+        """Messages for this robot (or all, ``any_target``) arriving within ``timeout_s``."""
         readable, _, _ = select.select([self.sock], [], [], max(0.0, timeout_s))
         if not readable:
             return []
@@ -136,18 +136,20 @@ class SimRobot:
                 msg = wire.unwrap_tunnel(self.codec, msg)
                 if msg is None:
                     continue
-            if getattr(msg, "target_system", self.sysid) in (0, self.sysid):
+            if any_target or getattr(msg, "target_system", self.sysid) in (0, self.sysid):
                 out.append(Received(msg, tunnelled))
         return out
 
-    def wait_for(self, msg_type: str, timeout_s: float, **fields: int) -> Received:
+    def wait_for(
+        self, msg_type: str, timeout_s: float, *, any_target: bool = False, **fields: int
+    ) -> Received:
         """The next message of ``msg_type`` with the given field values; TimeoutError if none."""
         deadline = time.monotonic() + timeout_s
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
                 raise TimeoutError(f"robot {self.sysid}: no {msg_type} {fields} in {timeout_s} s")
-            for rx in self.receive(left):
+            for rx in self.receive(left, any_target=any_target):
                 if rx.msg.get_type() == msg_type and all(
                     getattr(rx.msg, k) == v for k, v in fields.items()
                 ):

@@ -51,6 +51,7 @@ class HqProcess:
             cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
         self.lines: queue.Queue[str] = queue.Queue()
+        self.err_lines: queue.Queue[str] = queue.Queue()
         self.stderr: list[str] = []
         self._pumps = [
             threading.Thread(target=self._pump, daemon=True),
@@ -71,8 +72,10 @@ class HqProcess:
         assert self.proc.stderr is not None
         for line in self.proc.stderr:
             self.stderr.append(line)
+            self.err_lines.put(line.rstrip("\n"))
 
-    def wait_line(self, text: str, timeout_s: float) -> str:
+    def wait_line(self, text: str, timeout_s: float, *, stderr: bool = False) -> str:
+        lines = self.err_lines if stderr else self.lines
         deadline = time.monotonic() + timeout_s
         while True:
             left = deadline - time.monotonic()
@@ -81,7 +84,7 @@ class HqProcess:
                     f"rescue-hq printed no line with {text!r}; stderr: {self.stderr}"
                 )
             try:
-                line = self.lines.get(timeout=left)
+                line = lines.get(timeout=left)
             except queue.Empty:
                 continue
             if text in line:
@@ -342,8 +345,8 @@ def test_locked_database_means_no_ack_until_stored(start_hq) -> None:
         blocker.execute("BEGIN EXCLUSIVE")
         try:
             robot.send(msg)
-            with pytest.raises(TimeoutError):
-                ack_for(robot, msg.report_seq)  # the HQ must not ack what it did not store
+            hq.wait_line("not stored, not acknowledged", 10.0, stderr=True)
+            assert robot.receive(0.0) == []  # the HQ did not ack what it did not store
         finally:
             blocker.execute("ROLLBACK")
             blocker.close()
