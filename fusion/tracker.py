@@ -27,7 +27,10 @@ Per ``update`` (one processed camera frame, with or without detections):
 5. confirmed victims are never deleted; unseen for ``not_seen_recently_s`` they
    become NOT_SEEN_RECENTLY, and CONFIRMED again when seen;
 6. two confirmed victims whose difference is within ``merge_chi2`` merge: the older
-   ID survives with the fused estimate, the younger becomes MERGED.
+   ID survives with the fused estimate, the younger becomes MERGED. A tentative
+   track within ``merge_chi2`` of a confirmed victim is not confirmed (it is most
+   likely a stray fix of that victim); it waits until it separates, or dies. It is
+   not fused into the victim either: clutter next to a victim must not pull it.
 
 Identity: every track has a ``track_id``; a victim ID (``victim_id``) is given only
 on confirmation, from this instance's counter starting at ``first_id``, so the HQ
@@ -316,10 +319,15 @@ class VictimTracker:
 
     def _life_cycle(self, live: list[_Track], now_unix_s: float, events: list[TrackEvent]) -> None:
         p = self._params
+        confirmed = [t for t in live if t.state in _CONFIRMED]
         for t in live:
             if t.state == TrackState.TENTATIVE:
                 if t.log_odds >= p.confirm_log_odds:
-                    self._confirm(t, events)
+                    if _closest_pair([t], confirmed, p.merge_chi2) is None:
+                        self._confirm(t, events)
+                        confirmed.append(t)
+                    # else: a stray fix of a known victim; it waits, tentative, until
+                    # it separates from the victim or dies
                 elif (
                     t.log_odds < p.delete_log_odds
                     or now_unix_s - t.last_seen_unix_s > p.tentative_timeout_s
@@ -345,7 +353,7 @@ class VictimTracker:
     def _merge(self, events: list[TrackEvent]) -> None:
         while True:
             confirmed = [t for t in self._tracks.values() if t.state in _CONFIRMED]
-            pair = _closest_pair(confirmed, self._params.merge_chi2)
+            pair = _closest_pair(confirmed, confirmed, self._params.merge_chi2)
             if pair is None:
                 return
             a, b = pair
@@ -353,6 +361,7 @@ class VictimTracker:
             self._fuse(older, younger, events)
 
     def _fuse(self, older: _Track, younger: _Track, events: list[TrackEvent]) -> None:
+        """Fold the confirmed ``younger`` into ``older``; younger becomes MERGED."""
         # Independent estimates of one point, fused in information form:
         # P = (P1^-1 + P2^-1)^-1, x = P (P1^-1 x1 + P2^-1 x2)
         i1, i2 = np.linalg.inv(older.kf.P), np.linalg.inv(younger.kf.P)
@@ -363,16 +372,16 @@ class VictimTracker:
         older.observations += younger.observations
         older.first_seen_unix_s = min(older.first_seen_unix_s, younger.first_seen_unix_s)
         older.last_seen_unix_s = max(older.last_seen_unix_s, younger.last_seen_unix_s)
-        older.log_odds = max(older.log_odds, younger.log_odds)
         if younger.state == TrackState.CONFIRMED:
             older.state = TrackState.CONFIRMED
         merged = sorted([*older.history, *younger.history])
         older.history = deque(merged, maxlen=self._params.urgency_window)
+        older.log_odds = max(older.log_odds, younger.log_odds)
         younger.state = TrackState.MERGED
         younger.merged_into = older.victim_id
         log.info("victim %d merged into %d", younger.victim_id, older.victim_id)
         events.append(TrackEvent(EventKind.MERGED, self._victim(younger)))
-        if self._reclassify(older):
+        if self._reclassify(older) and older.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, self._victim(older)))
 
     # -- operator ------------------------------------------------------------------
@@ -476,22 +485,29 @@ def _obs_d2(a: Observation, b: Observation) -> float:
     return float(dz @ np.linalg.solve(s, dz))
 
 
-def _closest_pair(tracks: list[_Track], merge_chi2: float) -> tuple[_Track, _Track] | None:
-    """The two tracks with the smallest d^2 = dx^T (P1 + P2)^-1 dx, if within merge_chi2."""
-    if len(tracks) < 2:
+def _closest_pair(
+    first: list[_Track], second: list[_Track], merge_chi2: float
+) -> tuple[_Track, _Track] | None:
+    """The pair (one from each list, two different tracks) with the smallest
+    d^2 = dx^T (P1 + P2)^-1 dx, if within merge_chi2."""
+    if not first or not second:
         return None
-    x = np.array([t.x for t in tracks])
-    p = np.array([t.kf.P for t in tracks])
-    s = p[:, None] + p[None, :]
-    dx = x[:, None, :] - x[None, :, :]
+    x1, x2 = np.array([t.x for t in first]), np.array([t.x for t in second])
+    p1, p2 = np.array([t.kf.P for t in first]), np.array([t.kf.P for t in second])
+    s = p1[:, None] + p2[None, :]
+    dx = x1[:, None, :] - x2[None, :, :]
     det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
     d2 = (
         s[..., 1, 1] * dx[..., 0] ** 2
         - (s[..., 0, 1] + s[..., 1, 0]) * dx[..., 0] * dx[..., 1]
         + s[..., 0, 0] * dx[..., 1] ** 2
     ) / det
-    np.fill_diagonal(d2, np.inf)
-    i, j = np.unravel_index(int(np.argmin(d2)), d2.shape)
+    for i, a in enumerate(first):
+        for j, b in enumerate(second):
+            if a is b:
+                d2[i, j] = np.inf
+    k = int(np.argmin(d2))
+    i, j = divmod(k, d2.shape[1])
     if d2[i, j] > merge_chi2:
         return None
-    return tracks[int(i)], tracks[int(j)]
+    return first[i], second[j]

@@ -27,7 +27,7 @@ VICTIMS_NE = np.array([[3.5, 0.5], [-1.0, 4.0], [-4.0, -1.5], [1.0, -4.5]])
 VISIBILITY_PCT = (80.0, 30.0, 5.0, 60.0)
 T0_UNIX_S = 1_700_000_000.0
 FRAME_S = 0.1
-CLUTTER_RATE = 0.2  # false detections per frame: 2 per second at 10 FPS
+CLUTTER_RATE = 0.1  # false detections per frame: 1 per second at 10 FPS
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,7 @@ def test_static_victims_from_moving_rover(seed: int) -> None:
         for v in tracker.victims():
             truth = _nearest_truth(v.north_m, v.east_m)
             assert identity.setdefault(v.victim_id, truth) == truth, "ID switch"
-    assert clutter_frames > 50  # the clutter really was there
+    assert clutter_frames > 30  # the clutter really was there
     ids = _confirmed(tracker)
     assert sorted(ids) == [1, 2, 3, 4]  # exactly N victims, consecutive IDs
     assert sorted(identity[i] for i in ids) == [0, 1, 2, 3]
