@@ -124,6 +124,14 @@ def start_hq(tmp_path: Path) -> Iterator[object]:
         hq.close()
 
 
+def acks_waiting(robot: SimRobot) -> list[object]:
+    """RESCUE_ACKs already in the robot's socket (HEARTBEATs from the HQ are expected)."""
+    out = []
+    while batch := robot.receive(0.0):
+        out += [rx.msg for rx in batch if rx.msg.get_type() == "RESCUE_ACK"]
+    return out
+
+
 def ack_for(robot: SimRobot, seq: int) -> object:
     return robot.wait_for("RESCUE_ACK", ACK_TIMEOUT_S, acked_msgid=43100, seq=seq).msg
 
@@ -346,7 +354,7 @@ def test_locked_database_means_no_ack_until_stored(start_hq) -> None:
         try:
             robot.send(msg)
             hq.wait_line("not stored, not acknowledged", 10.0, stderr=True)
-            assert robot.receive(0.0) == []  # the HQ did not ack what it did not store
+            assert acks_waiting(robot) == []  # the HQ did not ack what it did not store
         finally:
             blocker.execute("ROLLBACK")
             blocker.close()
@@ -355,3 +363,27 @@ def test_locked_database_means_no_ack_until_stored(start_hq) -> None:
     hq.stop()
     with Registry(hq.db) as reg:
         assert reg.report_count() == 1
+
+
+def test_signing_unsigned_reports_are_ignored_signed_ones_acked(start_hq, tmp_path: Path) -> None:
+    from mavlink_io.signing import load_signing
+
+    key = tmp_path / "hq.key"
+    key.write_text(bytes(range(32)).hex() + "\n")  # a fixed test key
+    key.chmod(0o600)
+    hq = start_hq("--signing-key", str(key))
+    with (
+        SimRobot(9, hq.address) as unsigned,
+        SimRobot(10, hq.address, signing=load_signing(key)) as signed,
+    ):
+        forged = unsigned.report_msg(unsigned.victim(1, 0.0, 0.0))
+        unsigned.send(forged)
+        good = signed.report_msg(signed.victim(1, 1.0, 1.0))
+        signed.send(good)
+        # The robot's codec accepts only a correctly signed RESCUE_ACK: receiving it
+        # proves the HQ signs its replies.
+        assert ack_for(signed, good.report_seq).result == ACCEPTED
+        assert acks_waiting(unsigned) == []
+    hq.stop()
+    with Registry(hq.db) as reg:
+        assert [s.report.robot_sysid for s in reg.sources()] == [10]
