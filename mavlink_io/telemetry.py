@@ -15,6 +15,7 @@ never an origin.
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 
 from fusion.types import GlobalOrigin, PoseSample
 from mavlink_io import convert
@@ -148,3 +149,75 @@ class OriginTracker:
         if local is None or glob is None or abs(glob.t_boot_s - local.t_boot_s) > _SAME_INSTANT_S:
             return False
         return self._offer(convert.origin_from_global_and_local(glob, local), SOURCE_DERIVED)
+
+
+# -- one vehicle's telemetry, without a link ------------------------------------------
+
+_MSG_ATTITUDE = 30
+_MSG_LOCAL_POSITION_NED = 32
+_MSG_GLOBAL_POSITION_INT = 33
+_MSG_GPS_GLOBAL_ORIGIN = 49
+_MSG_HOME_POSITION = 242
+_MAV_TYPE_GCS = 6
+_MAV_TYPE_ONBOARD_CONTROLLER = 18
+_MAV_AUTOPILOT_INVALID = 8
+AUTOPILOT_COMPONENT = 1
+
+
+def is_autopilot_heartbeat(msg: MavMessage, system_id: int = 0) -> bool:
+    """A HEARTBEAT from a flight/rover controller (component 1, not a GCS or a
+    companion), of ``system_id`` when that is not 0."""
+    return bool(
+        msg.get_msgId() == 0
+        and msg.get_srcComponent() == AUTOPILOT_COMPONENT
+        and msg.type not in (_MAV_TYPE_GCS, _MAV_TYPE_ONBOARD_CONTROLLER)
+        and msg.autopilot != _MAV_AUTOPILOT_INVALID
+        and system_id in (0, msg.get_srcSystem())
+    )
+
+
+@dataclass(frozen=True)
+class TelemetryUpdate:
+    """What one autopilot message changed."""
+
+    pose: PoseSample | None = None
+    rebooted: bool = False  # boot time went backwards: poses before this are void
+    origin_changed: bool = False
+
+
+class TelemetryDecoder:
+    """Pose samples, clock and origin from one autopilot's messages (one thread).
+
+    The caller passes only the autopilot's own messages and their arrival times on
+    its clock (the companion's monotonic clock live, the tlog's clock in replay).
+    """
+
+    def __init__(self, clock: BootClock | None = None) -> None:
+        self.clock = clock if clock is not None else BootClock()
+        self.origins = OriginTracker()
+        self._assembler = PoseAssembler(self.clock)
+
+    def reset(self) -> None:
+        self.clock.reset()
+        self._assembler.reset()
+        self.origins.reset()
+
+    def handle(self, msg: MavMessage, t_arrival_s: float) -> TelemetryUpdate:
+        msg_id = msg.get_msgId()
+        if msg_id in (_MSG_ATTITUDE, _MSG_LOCAL_POSITION_NED):
+            rebooted = self.clock.observe(msg.time_boot_ms / 1000.0, t_arrival_s)
+            if rebooted:
+                self._assembler.reset()
+                self.origins.reset()
+            if msg_id == _MSG_ATTITUDE:
+                return TelemetryUpdate(self._assembler.on_attitude(msg), rebooted)
+            pose = self._assembler.on_local_position(msg)
+            changed = self.origins.on_local_position(self._assembler.latest_position)
+            return TelemetryUpdate(pose, rebooted, changed)
+        if msg_id == _MSG_GLOBAL_POSITION_INT:
+            self.origins.on_global_position(msg)
+        elif msg_id == _MSG_GPS_GLOBAL_ORIGIN:
+            return TelemetryUpdate(origin_changed=self.origins.on_gps_global_origin(msg))
+        elif msg_id == _MSG_HOME_POSITION:
+            return TelemetryUpdate(origin_changed=self.origins.on_home_position(msg))
+        return TelemetryUpdate()
