@@ -59,6 +59,7 @@ class ClassicParams:
     skin_extent_m: tuple[float, float] = (0.06, 1.0)  # longest side of a skin part
     skin_half_width_m: float = 0.02  # thickest point: a palm is ~0.08 m wide; text strokes
     min_half_width_px: float = 3.0  # without geometry: the same in frame pixels
+    min_skin_solidity: float = 0.6  # hands, faces, cut limbs are compact; glyphs are not
     body_area_max_m2: float = 1.0  # a whole lying adult is ~0.6 m^2
     body_extent_max_m: float = 2.4
     merge_gap_m: float = 0.5  # parts of one body are closer than this on the floor
@@ -218,6 +219,9 @@ class _Frame:
         roi = (labels[r.y0 : r.y1, r.x0 : r.x1] == r.label).astype(np.uint8)
         shape = self._full_res_shape(r, roi)
         if shape is None:
+            return False
+        if shape.solidity < self.p.min_skin_solidity:
+            self.det._reject("skin fragmented")
             return False
         if self.geometry is not None:
             mpp = self.mpp(r.cx, r.cy) or 0.0

@@ -175,7 +175,7 @@ def looks_man_made(shape: Shape, luma_std: float, flat_luma_std: float = 6.0) ->
     return shape.corners <= 5 and shape.solidity > 0.9 and luma_std < flat_luma_std
 
 
-def text_like_labels(stats: np.ndarray, min_neighbours: int = 2) -> set[int]:
+def text_like_labels(stats: np.ndarray, min_neighbours: int = 1) -> set[int]:
     """Components that sit in a row of similar-height components: a line of text.
 
     Overlay text breaks into glyphs of one height side by side on one baseline; body
