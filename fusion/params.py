@@ -73,6 +73,9 @@ class TrackerParams:
     merge_chi2: float = 5.99  # two confirmed tracks closer than this (95 %, 2 dof) merge
     urgency_window: int = 15  # recent visibility observations used for the class
     urgency_hysteresis_pct: float = 3.0  # a class boundary must be crossed by this much
+    # An unmatched observation this close (chi-square, 2 dof; 18.42 = 99.99 %) to an
+    # existing track is an outlier or duplicate of it and starts no new track.
+    new_track_exclusion_chi2: float = 18.42
 
     def __post_init__(self) -> None:
         _all_finite(self)
@@ -92,6 +95,12 @@ class TrackerParams:
         _require(self.not_seen_recently_s > 0.0, self, "not_seen_recently_s", "must be > 0")
         _require(self.merge_chi2 > 0.0, self, "merge_chi2", "must be > 0")
         _require(self.urgency_window >= 1, self, "urgency_window", "must be >= 1")
+        _require(
+            self.new_track_exclusion_chi2 >= self.gate_chi2,
+            self,
+            "new_track_exclusion_chi2",
+            "must be >= gate_chi2",
+        )
         _require(
             0.0 <= self.urgency_hysteresis_pct < 10.0,
             self,

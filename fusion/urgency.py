@@ -32,7 +32,7 @@ def weighted_median(values: Sequence[float], weights: Sequence[float]) -> float:
         raise ValueError("weighted_median of no values")
     if len(values) != len(weights):
         raise ValueError(f"{len(values)} values but {len(weights)} weights")
-    if any(w < 0.0 for w in weights):
+    if min(weights) < 0.0:
         raise ValueError("weights must be >= 0")
     total = sum(weights)
     if total <= 0.0:
