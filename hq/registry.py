@@ -161,6 +161,8 @@ class Registry:
 
     def __init__(self, path: Path, *, busy_timeout_ms: int = _BUSY_TIMEOUT_MS) -> None:
         self.path = path
+        self._cache: dict[tuple[int, int], tuple[int, Placed]] | None = None
+        self._origins_cache: Origins | None = None
         try:
             self._db = sqlite3.connect(
                 str(path), isolation_level=None, timeout=busy_timeout_ms / 1000.0
@@ -250,14 +252,20 @@ class Registry:
         try:
             results = [self._store_one(item) for item in batch]
         except sqlite3.OperationalError as exc:
+            self._forget_cache()
             self._db.execute("ROLLBACK")
             if _is_lock_error(exc):
                 raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
             raise RegistryError(f"database {self.path}: {exc}") from None
         except BaseException:
+            self._forget_cache()
             self._db.execute("ROLLBACK")
             raise
-        self._commit()
+        try:
+            self._commit()
+        except RegistryError:
+            self._forget_cache()
+            raise
         return results
 
     def _store_one(self, item: IncomingReport) -> StoreResult:
@@ -304,7 +312,37 @@ class Registry:
             ),
         )
         db.execute("UPDATE reports SET applied=1 WHERE id=?", (report_row,))
+        cache = self._placed_sources()
+        if r.state == TrackState.MERGED:
+            cache.pop((r.robot_sysid, r.victim_id), None)
+        else:
+            cache[(r.robot_sysid, r.victim_id)] = (
+                hq_id,
+                placed(r, self._origins_cache or self.origins()),
+            )
         return StoreResult.ACCEPTED
+
+    def _placed_sources(self) -> dict[tuple[int, int], tuple[int, Placed]]:
+        """(robot, victim) -> (HQ ID, position) of every unmerged source, kept in memory.
+
+        Only the HQ process writes sources; the cache is dropped on a rollback and
+        when an origin changes, and rebuilt from the database on next use.
+        """
+        if self._cache is None:
+            self._origins_cache = self.origins()
+            self._cache = {
+                (s.report.robot_sysid, s.report.victim_id): (
+                    s.hq_id,
+                    placed(s.report, self._origins_cache),
+                )
+                for s in self.sources()
+                if s.report.state != TrackState.MERGED
+            }
+        return self._cache
+
+    def _forget_cache(self) -> None:
+        self._cache = None
+        self._origins_cache = None
 
     def _place(self, item: IncomingReport, current: int | None) -> int:
         """The HQ victim ID for this report's source (creating one when needed)."""
@@ -317,13 +355,11 @@ class Registry:
             if target is not None:
                 return int(target[0])
         if r.state != TrackState.MERGED:
-            origins = self.origins()
-            candidate = placed(r, origins)
+            cache = self._placed_sources()
+            candidate = placed(r, self._origins_cache or self.origins())
             groups: dict[int, list[Placed]] = {}
-            for src in self.sources():
-                if src.report.state == TrackState.MERGED:
-                    continue
-                groups.setdefault(src.hq_id, []).append(placed(src.report, origins))
+            for hq_id, p in cache.values():
+                groups.setdefault(hq_id, []).append(p)
             chosen = merge.assign(candidate, current, groups)
             if chosen is not None:
                 if chosen != current:
@@ -368,6 +404,7 @@ class Registry:
         self._commit()
 
     def set_robot_origin(self, sysid: int, compid: int, origin: GlobalOrigin) -> None:
+        self._forget_cache()
         self._begin()
         try:
             self._touch_robot(sysid, compid, time.time())
@@ -383,6 +420,7 @@ class Registry:
 
     def set_default_origin(self, origin: GlobalOrigin | None) -> None:
         value = None if origin is None else json.dumps(asdict(origin))
+        self._forget_cache()
         self._begin()
         if value is None:
             self._db.execute("DELETE FROM meta WHERE key='default_origin'")
