@@ -70,6 +70,11 @@ class FramesDirSource:
     def __len__(self) -> int:
         return len(self._entries)
 
+    @property
+    def mono_minus_unix_s(self) -> float:
+        """The offset that maps the frames' wall times onto t_mono_s."""
+        return self._offset_s
+
     def read(self, timeout_s: float) -> Frame:
         if self._closed:
             raise CameraError(f"{self.name}: closed")

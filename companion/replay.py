@@ -1,0 +1,223 @@
+"""``rescue-companion replay``: the live pipeline, offline, on a recorded mission.
+
+Inputs: a tlog of what the autopilot sent (8-byte big-endian Unix microseconds before
+each packet) and a folder of frames named ``<unix_time_microseconds>.jpg|png`` on
+the same clock. Poses are decoded exactly as live (the tlog time plays the part of
+the arrival time), frames are processed in time order once the telemetry has run
+``LOOKAHEAD_S`` past them (so the pose after the frame is known for interpolation),
+and the result is deterministic: no wall clock, no threads.
+
+Output: a JSON document (docs/REPLAY.md) and a mission map PNG beside it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from companion.calibration import camera_model
+from companion.config import Config
+from companion.missionmap import draw_mission_map
+from companion.pipeline import Pipeline
+from companion.reporting import ReportPolicy
+from companion.sources import EndOfStream, Frame
+from companion.sources.folder import FramesDirSource
+from companion.vision import make_detector
+from fusion.pose import PoseHistory
+from fusion.registry import Victim
+from fusion.tracker import VictimTracker
+from fusion.types import GlobalOrigin, TrackState
+from mavlink_io.codec import MavMessage
+from mavlink_io.telemetry import TelemetryDecoder, is_autopilot_heartbeat
+from mavlink_io.tlog import read_tlog
+
+log = logging.getLogger(__name__)
+
+LOOKAHEAD_S = 0.25  # telemetry read past a frame before it is processed
+REPLAY_FORMAT = "rescue-companion/replay"
+REPLAY_VERSION = 1
+
+
+@dataclass
+class ReplayResult:
+    victims: list[Victim]
+    merged: list[Victim]
+    origin: GlobalOrigin | None
+    robot_sysid: int
+    frames: int = 0
+    frames_without_pose: int = 0
+    poses: int = 0
+    reboots: int = 0
+    first_reported_unix_s: dict[int, float] = field(default_factory=dict)
+    route_ne_m: list[tuple[float, float]] = field(default_factory=list)
+    floor_down_m: float = 0.0
+
+
+class _Telemetry:
+    """The autopilot's messages from a tlog, decoded into a pose history."""
+
+    def __init__(self, tlog: Path, poses: PoseHistory, offset_s: float) -> None:
+        self._messages: Iterator[tuple[float, MavMessage]] = read_tlog(tlog)
+        self._pending: tuple[float, MavMessage] | None = None
+        self._offset_s = offset_s  # tlog wall time -> the frames' t_mono_s
+        self.poses = poses
+        self.decoder = TelemetryDecoder()
+        self.sysid = 0
+        self.count = 0
+        self.reboots = 0
+        self.route: list[tuple[float, float]] = []
+        self.last_down_m = 0.0
+
+    def advance_to(self, t_unix_s: float) -> None:
+        """Feed every message stamped up to ``t_unix_s``."""
+        while True:
+            if self._pending is None:
+                self._pending = next(self._messages, None)
+                if self._pending is None:
+                    return
+            t, msg = self._pending
+            if t > t_unix_s:
+                return
+            self._pending = None
+            self._handle(t, msg)
+
+    def _handle(self, t_unix_s: float, msg: MavMessage) -> None:
+        if is_autopilot_heartbeat(msg, self.sysid):
+            if self.sysid == 0:
+                self.sysid = msg.get_srcSystem()
+                log.info("replay: vehicle system ID %d", self.sysid)
+            return
+        if self.sysid == 0 or (msg.get_srcSystem(), msg.get_srcComponent()) != (self.sysid, 1):
+            return
+        update = self.decoder.handle(msg, t_unix_s + self._offset_s)
+        if update.rebooted:
+            self.reboots += 1
+            log.warning("replay: the autopilot rebooted at %.3f; pose history cleared", t_unix_s)
+            self.poses.clear()
+        if update.pose is not None:
+            self.poses.add(update.pose)
+            self.count += 1
+            self.last_down_m = update.pose.down_m
+            if not self.route or _far(self.route[-1], (update.pose.north_m, update.pose.east_m)):
+                self.route.append((update.pose.north_m, update.pose.east_m))
+
+
+def _far(a: tuple[float, float], b: tuple[float, float], step_m: float = 0.05) -> bool:
+    return abs(a[0] - b[0]) + abs(a[1] - b[1]) > step_m
+
+
+def _progress(done: int, total: int, victims: int) -> None:
+    if sys.stderr.isatty():
+        width = 30
+        filled = width * done // max(total, 1)
+        sys.stderr.write(
+            f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} frames, {victims} victims"
+        )
+        if done == total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+    elif done == total or done % 200 == 0:
+        log.info("replay: %d/%d frames, %d victims", done, total, victims)
+
+
+def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
+    """Run the pipeline over a recorded mission. Raises CameraError/TlogError on
+    unusable inputs (the CLI reports them)."""
+    source = FramesDirSource(frames_dir)
+    poses = PoseHistory(config.vehicle.pose_history_s)
+    telemetry = _Telemetry(tlog, poses, source.mono_minus_unix_s)
+    tracker = VictimTracker(config.tracker)
+    pipeline = Pipeline(
+        config,
+        camera_model(config.camera),
+        make_detector(config.detector),
+        tracker,
+        ReportPolicy(config.reporting.move_threshold_sigma),
+    )
+    first_reported: dict[int, float] = {}
+    total = len(source)
+    while True:
+        try:
+            frame: Frame = source.read(timeout_s=0.0)
+        except EndOfStream:
+            break
+        telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)
+        outcome = pipeline.process(frame, poses)
+        for decision in outcome.decisions:
+            first_reported.setdefault(decision.victim.victim_id, frame.t_unix_s)
+        _progress(frame.index + 1, total, len(tracker.victims()))
+    telemetry.advance_to(float("inf"))
+    source.close()
+    everything = tracker.victims()
+    return ReplayResult(
+        victims=[v for v in everything if v.state != TrackState.MERGED],
+        merged=[v for v in everything if v.state == TrackState.MERGED],
+        origin=telemetry.decoder.origins.origin,
+        robot_sysid=telemetry.sysid,
+        frames=pipeline.counters.frames,
+        frames_without_pose=pipeline.counters.frames_without_pose,
+        poses=telemetry.count,
+        reboots=telemetry.reboots,
+        first_reported_unix_s=first_reported,
+        route_ne_m=telemetry.route,
+        floor_down_m=telemetry.last_down_m + config.geolocation.floor_down_m,
+    )
+
+
+def result_document(result: ReplayResult) -> dict[str, Any]:
+    """The JSON document of a replay (schema in docs/REPLAY.md)."""
+    sysid = result.robot_sysid or 1
+    victims = []
+    for v in result.victims:
+        report = v.to_report(sysid, result.floor_down_m, result.origin)
+        victims.append(
+            {
+                "victim_id": v.victim_id,
+                "state": v.state.name,
+                "urgency": v.urgency.name,
+                "visibility_pct": round(v.visibility_pct, 2),
+                "north_m": v.north_m,
+                "east_m": v.east_m,
+                "down_m": report.down_m,
+                "lat_deg": report.lat_deg,
+                "lon_deg": report.lon_deg,
+                "alt_m": report.alt_m,
+                "sigma_m": v.sigma_m,
+                "cov_ne_m2": [list(row) for row in v.cov_ne_m2],
+                "observations": v.observations,
+                "first_seen_unix_s": v.first_seen_unix_s,
+                "last_seen_unix_s": v.last_seen_unix_s,
+                "first_reported_unix_s": result.first_reported_unix_s.get(v.victim_id),
+            }
+        )
+    origin = result.origin
+    return {
+        "format": REPLAY_FORMAT,
+        "version": REPLAY_VERSION,
+        "robot_sysid": result.robot_sysid,
+        "origin": None
+        if origin is None
+        else {"lat_deg": origin.lat_deg, "lon_deg": origin.lon_deg, "alt_m": origin.alt_m},
+        "frames": result.frames,
+        "frames_without_pose": result.frames_without_pose,
+        "poses": result.poses,
+        "autopilot_reboots": result.reboots,
+        "victims": victims,
+        "merged": [{"victim_id": v.victim_id, "merged_into": v.merged_into} for v in result.merged],
+    }
+
+
+def write_outputs(result: ReplayResult, out_json: Path) -> Path:
+    """Write the JSON document and the map PNG beside it; the PNG's path."""
+    out_json.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_json.with_suffix(out_json.suffix + ".tmp")
+    tmp.write_text(json.dumps(result_document(result), indent=2) + "\n")
+    tmp.replace(out_json)
+    png = out_json.with_suffix(".png")
+    draw_mission_map(png, result.route_ne_m, result.victims)
+    return png

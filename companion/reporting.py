@@ -1,0 +1,143 @@
+"""When to tell the HQ about a victim: the reporting policy. Pure logic, no I/O.
+
+A victim is reported
+- when it is confirmed (NEW; announced to people: STATUSTEXT and a map marker);
+- again when its urgency class changes (announced);
+- when it has moved by more than ``move_threshold_sigma`` of its uncertainty since
+  the last report (quiet: the full report and the map marker, no STATUSTEXT);
+- when its state changes (merged, not seen recently, seen again, operator marks);
+- on request from the HQ (RESEND);
+never once per frame. What was last reported per victim is part of the saved state,
+so a restart re-announces nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from fusion.registry import EventKind, TrackEvent, Victim, moved_beyond
+from fusion.types import TrackState, Urgency
+
+# RESCUE_REPORT_FLAGS of the dialect (mavlink_io/dialects/rescue.xml).
+FLAG_NEW = 2
+FLAG_URGENCY_CHANGED = 4
+FLAG_MOVED = 8
+FLAG_REQUESTED = 16
+
+
+@dataclass(frozen=True)
+class Reported:
+    """What the HQ was last told about one victim."""
+
+    state: TrackState
+    urgency: Urgency
+    north_m: float
+    east_m: float
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Report ``victim`` with these flags; ``announce``: also tell people (STATUSTEXT)."""
+
+    victim: Victim
+    flags: int
+    announce: bool
+
+
+class ReportPolicy:
+    """Decides reports from tracker events and the current victims."""
+
+    def __init__(self, move_threshold_sigma: float) -> None:
+        self.move_threshold_sigma = move_threshold_sigma
+        self.reported: dict[int, Reported] = {}
+
+    def decide(self, events: Sequence[TrackEvent], victims: Iterable[Victim]) -> list[Decision]:
+        """The reports owed after one tracker update; records them as reported."""
+        decisions: dict[int, Decision] = {}
+        for event in events:
+            decision = self._for_event(event)
+            if decision is not None:
+                decisions[decision.victim.victim_id] = _merge(
+                    decisions.get(decision.victim.victim_id), decision
+                )
+        for victim in victims:
+            last = self.reported.get(victim.victim_id)
+            if victim.victim_id in decisions or last is None:
+                continue
+            if victim.state in (
+                TrackState.CONFIRMED,
+                TrackState.NOT_SEEN_RECENTLY,
+            ) and moved_beyond(victim, last.north_m, last.east_m, self.move_threshold_sigma):
+                decisions[victim.victim_id] = Decision(victim, FLAG_MOVED, announce=False)
+        for d in decisions.values():
+            self._record(d.victim)
+        return list(decisions.values())
+
+    def requested(self, victims: Iterable[Victim]) -> list[Decision]:
+        """Reports the HQ asked for (RESEND): every victim already reported."""
+        out = [
+            Decision(v, FLAG_REQUESTED, announce=False)
+            for v in victims
+            if v.victim_id in self.reported
+        ]
+        for d in out:
+            self._record(d.victim)
+        return out
+
+    def _for_event(self, event: TrackEvent) -> Decision | None:
+        v = event.victim
+        last = self.reported.get(v.victim_id)
+        if event.kind is EventKind.CONFIRMED:
+            if last is None:
+                return Decision(v, FLAG_NEW, announce=True)
+            return None  # already reported (e.g. before a restart)
+        if last is None and event.kind is not EventKind.MERGED:
+            # Not yet reported: nothing to update. A merge of a never-reported track
+            # is also silent (below).
+            return None
+        if event.kind is EventKind.URGENCY_CHANGED:
+            if last is not None and last.urgency == v.urgency:
+                return None
+            return Decision(v, FLAG_URGENCY_CHANGED, announce=True)
+        if event.kind is EventKind.MERGED:
+            return Decision(v, 0, announce=True) if last is not None else None
+        if event.kind is EventKind.OPERATOR:
+            return Decision(v, 0, announce=True)
+        if event.kind is EventKind.MOVED:
+            return Decision(v, FLAG_MOVED, announce=False)
+        # NOT_SEEN_RECENTLY, SEEN_AGAIN: the state changed; the HQ should know.
+        return Decision(v, 0, announce=False)
+
+    def _record(self, v: Victim) -> None:
+        self.reported[v.victim_id] = Reported(v.state, v.urgency, v.north_m, v.east_m)
+
+    # -- persistence ---------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, Any]:
+        return {
+            str(vid): [r.state.name, r.urgency.name, r.north_m, r.east_m]
+            for vid, r in self.reported.items()
+        }
+
+    def restore(self, snapshot: Any) -> None:
+        """Load what was reported; ValueError naming the bad entry."""
+        if not isinstance(snapshot, dict):
+            raise ValueError("reported-state snapshot must be a JSON object")
+        reported: dict[int, Reported] = {}
+        for key, value in snapshot.items():
+            try:
+                state, urgency, north_m, east_m = value
+                reported[int(key)] = Reported(
+                    TrackState[state], Urgency[urgency], float(north_m), float(east_m)
+                )
+            except (KeyError, TypeError, ValueError):
+                raise ValueError(f"reported-state entry {key!r} = {value!r} is malformed") from None
+        self.reported = reported
+
+
+def _merge(a: Decision | None, b: Decision) -> Decision:
+    if a is None:
+        return b
+    return Decision(b.victim, a.flags | b.flags, a.announce or b.announce)

@@ -1,0 +1,150 @@
+"""The companion's durable state: one SQLite file (WAL) in the state directory.
+
+What survives a crash or ``kill -9``:
+- the tracker snapshot (victims, their IDs, the next ID);
+- what was reported about each victim (so a restart re-announces nothing as new);
+- the next report sequence number;
+- the outbox of dialect messages not yet acknowledged by the HQ
+  (mavlink_io.reliable.OutboxStore).
+
+The processing thread writes a frame's consequences in one transaction
+(``with store.transaction(): ...``) *before* anything is sent, so what was sent is
+always on disk. ``put`` is idempotent (INSERT OR IGNORE), so the outbox can store a
+message again when it later sends it. One connection, guarded by a lock: the
+processing thread writes, the reporter thread acknowledges.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import sqlite3
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 1
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS kv (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS outbox (
+    msgid INTEGER NOT NULL,
+    seq INTEGER NOT NULL,
+    frame BLOB NOT NULL,
+    PRIMARY KEY (msgid, seq)
+);
+"""
+
+
+class StoreError(Exception):
+    """The state database cannot be opened or used; the message names the file."""
+
+
+class Store:
+    """Durable companion state. Thread-safe; ``close()`` is safe twice."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lock = threading.RLock()
+        self._depth = 0
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._db: sqlite3.Connection | None = sqlite3.connect(
+                str(path), timeout=5.0, isolation_level=None, check_same_thread=False
+            )
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.executescript(_SCHEMA)
+            version = self._get("schema_version")
+            if version is None:
+                self._set("schema_version", SCHEMA_VERSION)
+            elif version != SCHEMA_VERSION:
+                raise StoreError(
+                    f"{path}: state database version {version}, expected {SCHEMA_VERSION}"
+                )
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{path}: cannot use the state database: {exc}") from None
+        except OSError as exc:
+            raise StoreError(f"{path}: cannot create the state directory: {exc.strerror}") from None
+
+    # -- transactions ----------------------------------------------------------------
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[None]:
+        """Group writes into one commit; nests (the outermost one commits)."""
+        with self._lock:
+            db = self._conn()
+            if self._depth == 0:
+                db.execute("BEGIN IMMEDIATE")
+            self._depth += 1
+            try:
+                yield
+            except BaseException:
+                self._depth -= 1
+                if self._depth == 0:
+                    db.execute("ROLLBACK")
+                raise
+            self._depth -= 1
+            if self._depth == 0:
+                db.execute("COMMIT")
+
+    def _conn(self) -> sqlite3.Connection:
+        if self._db is None:
+            raise StoreError(f"{self.path}: the state database is closed")
+        return self._db
+
+    # -- key/value state ---------------------------------------------------------------
+
+    def _get(self, key: str) -> Any:
+        row = self._conn().execute("SELECT value FROM kv WHERE key = ?", (key,)).fetchone()
+        if row is None:
+            return None
+        try:
+            return json.loads(row[0])
+        except json.JSONDecodeError:
+            raise StoreError(f"{self.path}: stored {key!r} is not valid JSON") from None
+
+    def _set(self, key: str, value: Any) -> None:
+        self._conn().execute(
+            "INSERT OR REPLACE INTO kv (key, value) VALUES (?, ?)", (key, json.dumps(value))
+        )
+
+    def get(self, key: str) -> Any:
+        with self._lock:
+            return self._get(key)
+
+    def set(self, key: str, value: Any) -> None:
+        with self.transaction():
+            self._set(key, value)
+
+    # -- mavlink_io.reliable.OutboxStore ------------------------------------------------
+
+    def put(self, msgid: int, seq: int, frame: bytes) -> None:
+        with self.transaction():
+            self._conn().execute(
+                "INSERT OR IGNORE INTO outbox (msgid, seq, frame) VALUES (?, ?, ?)",
+                (msgid, seq, frame),
+            )
+
+    def ack(self, msgid: int, seq: int) -> bool:
+        with self.transaction():
+            cur = self._conn().execute(
+                "DELETE FROM outbox WHERE msgid = ? AND seq = ?", (msgid, seq)
+            )
+            return cur.rowcount > 0
+
+    def pending(self) -> list[tuple[int, int, bytes]]:
+        with self._lock:
+            rows = (
+                self._conn().execute("SELECT msgid, seq, frame FROM outbox ORDER BY seq").fetchall()
+            )
+        return [(int(m), int(s), bytes(f)) for m, s, f in rows]
+
+    def close(self) -> None:
+        with self._lock:
+            if self._db is not None:
+                self._db.close()
+                self._db = None
