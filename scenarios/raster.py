@@ -24,6 +24,7 @@ from scenarios.world import World
 
 DEFAULT_RES_M = 0.005
 PYRAMID_LEVELS = 5
+_SUPERSAMPLE = 4
 
 
 @dataclass(frozen=True)
@@ -90,17 +91,26 @@ def _paint(
     grain: float,
     edge_dark: float,
 ) -> None:
-    """Fill a polygon with a grainy colour and a darker rim."""
-    px = _to_px(poly_ne, res_m)
-    x0, y0 = np.maximum(px.min(axis=0) // 16 - 2, 0)
-    x1 = min(int(px[:, 0].max() // 16 + 3), img.shape[1])
-    y1 = min(int(px[:, 1].max() // 16 + 3), img.shape[0])
+    """Fill a polygon with a grainy colour and a darker rim, antialiased.
+
+    The polygon is filled at 4x the raster's resolution and area-averaged into a
+    coverage fraction: OpenCV's fill includes both end cells of a span, which
+    would shift an object's centroid by up to half a cell.
+    """
+    ss = _SUPERSAMPLE
+    pts = np.column_stack([poly_ne[:, 1] / res_m - 0.5, poly_ne[:, 0] / res_m - 0.5])
+    x0 = max(int(np.floor(pts[:, 0].min())) - 2, 0)
+    y0 = max(int(np.floor(pts[:, 1].min())) - 2, 0)
+    x1 = min(int(np.ceil(pts[:, 0].max())) + 3, img.shape[1])
+    y1 = min(int(np.ceil(pts[:, 1].max())) + 3, img.shape[0])
     if x1 <= x0 or y1 <= y0:
         return
     h, w = y1 - y0, x1 - x0
-    mask = np.zeros((h, w), np.uint8)
-    local = px - np.array([x0 * 16, y0 * 16], np.int32)
-    cv2.fillPoly(mask, [local], 255, cv2.LINE_8, 4)
+    # Cell (i, j) of the patch spans fine cells ss*i .. ss*i + ss - 1.
+    fine = (pts - np.array([x0, y0]) + 0.5) * ss - 0.5
+    mask = np.zeros((h * ss, w * ss), np.uint8)
+    cv2.fillPoly(mask, [np.round(fine * 16).astype(np.int32)], 255, cv2.LINE_8, 4)
+    cover = cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     colour = np.array(rgb[::-1], np.float32)
     shade = 1.0 + grain * (
         0.6 * _smooth_noise(rng, (h, w), max(2, int(0.05 / res_m)))
@@ -108,11 +118,14 @@ def _paint(
     )
     patch = colour[None, None, :] * shade[:, :, None]
     if edge_dark > 0:
-        rim = np.zeros((h, w), np.uint8)
-        cv2.polylines(rim, [local], True, 255, max(1, int(0.012 / res_m)), cv2.LINE_8, 4)
-        patch[(rim > 0) & (mask > 0)] *= 1.0 - edge_dark
+        # A darker rim just inside the edge (the mask minus its erosion: symmetric).
+        rim = max(1, round(0.012 / res_m * ss))
+        inner = cv2.erode(mask, np.ones((2 * rim + 1, 2 * rim + 1), np.uint8))
+        inner_cover = cv2.resize(inner, (w, h), interpolation=cv2.INTER_AREA) / 255.0
+        patch *= (1.0 - edge_dark * (1.0 - inner_cover.astype(np.float32)))[:, :, None]
     region = img[y0:y1, x0:x1]
-    region[mask > 0] = patch[mask > 0]
+    a = cover[:, :, None]
+    region[:] = region * (1.0 - a) + patch * a
 
 
 def build_raster(world: World, res_m: float = DEFAULT_RES_M) -> FloorRaster:

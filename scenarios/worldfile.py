@@ -261,6 +261,11 @@ def _f(x: float) -> str:
     return text if ("." in text or "e" in text) else text + ".0"
 
 
+def _deg(x_rad: float) -> str:
+    """Degrees at full precision, so a saved world loads back to the same radians."""
+    return repr(math.degrees(x_rad))
+
+
 def _pts(points: tuple[tuple[float, float], ...]) -> str:
     return "[" + ", ".join(f"[{_f(n)}, {_f(e)}]" for n, e in points) + "]"
 
@@ -272,7 +277,7 @@ def world_to_toml(world: World) -> str:
         f"seed = {world.seed}",
         f"size_m = [{_f(world.size_m[0])}, {_f(world.size_m[1])}]",
         f"start_ne_m = [{_f(world.start_ne_m[0])}, {_f(world.start_ne_m[1])}]",
-        f"start_heading_deg = {_f(math.degrees(world.start_heading_rad))}",
+        f"start_heading_deg = {_deg(world.start_heading_rad)}",
     ]
     if world.route_ne_m:
         lines.append(f"route_ne_m = {_pts(world.route_ne_m)}")
@@ -309,15 +314,15 @@ def world_to_toml(world: World) -> str:
             f"victim_id = {v.victim_id}",
             f"north_m = {_f(v.north_m)}",
             f"east_m = {_f(v.east_m)}",
-            f"heading_deg = {_f(math.degrees(v.heading_rad))}",
+            f"heading_deg = {_deg(v.heading_rad)}",
             f"height_m = {_f(v.height_m)}",
             f'skin = "{hex_from_rgb(v.skin_rgb)}"',
             f'top = "{hex_from_rgb(v.top_rgb)}"',
             f'trousers = "{hex_from_rgb(v.trousers_rgb)}"',
             f'shoes = "{hex_from_rgb(v.shoes_rgb)}"',
-            f"left_arm_deg = {_f(math.degrees(v.left_arm_rad))}",
-            f"right_arm_deg = {_f(math.degrees(v.right_arm_rad))}",
-            f"leg_spread_deg = {_f(math.degrees(v.leg_spread_rad))}",
+            f"left_arm_deg = {_deg(v.left_arm_rad)}",
+            f"right_arm_deg = {_deg(v.right_arm_rad)}",
+            f"leg_spread_deg = {_deg(v.leg_spread_rad)}",
             f"visibility_pct = {_f(v.visibility_pct)}  # computed, not read",
             f'urgency = "{v.urgency.name}"  # computed, not read',
         ]
