@@ -133,16 +133,23 @@ class Outbox:
                 continue
             self._schedule[(msgid, seq)] = _Schedule(msg, now, initial_s, 0)
 
-    def submit(self, msg: MavMessage) -> None:
-        """Store ``msg``, send it now and keep resending until acknowledged."""
+    def submit(self, msg: MavMessage, *, send: bool = True) -> None:
+        """Store ``msg`` and keep resending it until acknowledged.
+
+        ``send=False`` only stores and schedules it as due now: the caller commits
+        its own transaction first, and the next ``poll()`` sends it.
+        """
         key = (msg.get_msgId(), seq_of(msg))
         frame = self._frames.encode(msg)
         self._store.put(key[0], key[1], frame)
         now = self._clock()
         with self._lock:
+            self.counters.submitted += 1
+            if not send:
+                self._schedule[key] = _Schedule(msg, now, self._initial_s, 0)
+                return
             next_backoff_s = min(2.0 * self._initial_s, self._max_s)
             self._schedule[key] = _Schedule(msg, now + self._initial_s, next_backoff_s, 1)
-            self.counters.submitted += 1
             self.counters.sent += 1
         self._send(msg)
 
@@ -159,18 +166,19 @@ class Outbox:
         return found
 
     def poll(self) -> int:
-        """Resend every message that is due; returns how many were sent."""
+        """Send every message that is due (first sends and resends); how many."""
         now = self._clock()
         due: list[MavMessage] = []
         with self._lock:
             for item in self._schedule.values():
                 if item.next_due_s <= now:
                     due.append(item.msg)
+                    if item.attempts > 0:
+                        self.counters.resent += 1
                     item.attempts += 1
                     item.next_due_s = now + item.backoff_s
                     item.backoff_s = min(item.backoff_s * 2.0, self._max_s)
             self.counters.sent += len(due)
-            self.counters.resent += len(due)
         for msg in due:
             self._send(msg)
         return len(due)
