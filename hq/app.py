@@ -23,7 +23,7 @@ import sqlite3
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -97,7 +97,6 @@ class Counters:
     actions_acked: int = 0
     foreign_tunnels: int = 0
     exports: int = 0
-    extra: dict[str, int] = field(default_factory=dict)
 
 
 class HqApp:

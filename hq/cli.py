@@ -257,7 +257,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_list(args: argparse.Namespace) -> int:
     with _open_registry(args.db, must_exist=True) as registry:
-        header = table.Header(0, [str(args.db)], registry.report_count(), False)
+        header = table.Header(None, [str(args.db)], registry.report_count(), False)
         text = table.render(
             header,
             hq_victims(registry),

@@ -37,7 +37,7 @@ _ROBOT_SILENT_S = 5.0  # a robot unheard this long is shown as silent
 
 @dataclass(frozen=True)
 class Header:
-    sysid: int
+    sysid: int | None  # None: reading a registry file, not running
     links: Sequence[str]
     reports_stored: int
     signing: bool
@@ -131,7 +131,8 @@ def render(
     )
     waiting = sum(v.actions_pending for v in victims)
     title = (
-        f"rescue-hq  sysid {header.sysid}  {' '.join(header.links)}"
+        f"rescue-hq{'' if header.sysid is None else f'  sysid {header.sysid}'}"
+        f"  {' '.join(header.links)}"
         f"{'  signed' if header.signing else ''}  |  victims {len(victims)}"
         f" ({critical} critical open)  reports {header.reports_stored}"
         f"  waiting for ack {waiting}"
