@@ -1,0 +1,307 @@
+"""Recording (tlog + frames on one clock, camera config, ground truth), scoring, the
+camera server's wire format, and the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import struct
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from companion.calibration import camera_model
+from companion.config import config_from_dict
+from fusion.types import Urgency
+from scenarios.camera import default_camera
+from scenarios.camserver import HEADER, CameraServer
+from scenarios.motion import Trajectory, TruePose, route_of
+from scenarios.record import record
+from scenarios.render import Renderer
+from scenarios.score import (
+    GroundTruth,
+    ReportedVictim,
+    ScoreInputError,
+    TrueVictim,
+    load_report,
+    score,
+)
+from scenarios.world import preset
+
+START = 1_700_000_000.0
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("rec")
+    record(preset("mixed"), out, duration_s=3.0, start_unix_s=START)
+    return out
+
+
+def _tlog(path: Path) -> list:
+    conn = mavutil.mavlink_connection(str(path), dialect="common")
+    msgs = []
+    while (m := conn.recv_match()) is not None:
+        msgs.append(m)
+    conn.close()
+    return msgs
+
+
+def test_tlog_is_readable_and_on_the_frames_clock(recording: Path) -> None:
+    msgs = _tlog(recording / "mission.tlog")
+    kinds = {m.get_type() for m in msgs}
+    assert {
+        "HEARTBEAT",
+        "ATTITUDE",
+        "LOCAL_POSITION_NED",
+        "GLOBAL_POSITION_INT",
+        "SYSTEM_TIME",
+    } <= kinds
+    assert {"GPS_GLOBAL_ORIGIN", "HOME_POSITION", "SIM_STATE"} <= kinds
+    stamps = [m._timestamp for m in msgs]
+    assert stamps == sorted(stamps) and stamps[0] >= START and stamps[-1] <= START + 3.0
+    # SYSTEM_TIME carries the rover's wall clock: it equals the tlog's own stamp.
+    for m in msgs:
+        if m.get_type() == "SYSTEM_TIME":
+            assert m.time_unix_usec / 1e6 == pytest.approx(m._timestamp, abs=1e-6)
+    frames = sorted(int(p.stem) for p in (recording / "frames").glob("*.jpg"))
+    assert len(frames) == 30  # 3 s at 10 fps
+    assert np.allclose(np.diff(frames), 100_000)
+    assert frames[0] >= START * 1e6 and frames[-1] <= (START + 3.0) * 1e6
+    image = cv2.imread(str(recording / "frames" / f"{frames[0]}.jpg"))
+    assert image.shape == (480, 640, 3)
+
+
+def test_tlog_pose_is_the_true_pose_plus_small_error(recording: Path) -> None:
+    traj = Trajectory.for_world(preset("mixed"))
+    for m in _tlog(recording / "mission.tlog"):
+        if m.get_type() == "LOCAL_POSITION_NED":
+            true = traj.pose_at(m._timestamp - START)
+            # Drift (<= 8 cm) plus noise (1 cm, so 5 sigma) bounds the estimate's error.
+            assert math.hypot(m.x - true.north_m, m.y - true.east_m) < 0.14
+
+
+def test_camera_toml_loads_as_the_rendered_camera(recording: Path) -> None:
+    data = tomllib.loads((recording / "camera.toml").read_text())
+    config = config_from_dict(data)
+    assert camera_model(config.camera) == default_camera()
+    assert config.camera.source.startswith("frames:")
+
+
+def test_ground_truth_lists_victims_and_first_sight(recording: Path) -> None:
+    truth = json.loads((recording / "ground_truth.json").read_text())
+    world = preset("mixed")
+    assert [v["victim_id"] for v in truth["victims"]] == [v.victim_id for v in world.victims]
+    for got, v in zip(truth["victims"], world.victims, strict=True):
+        assert got["urgency"] == v.urgency.name
+        assert got["visibility_pct"] == pytest.approx(v.visibility_pct, abs=1e-3)
+    seen = [v for v in truth["victims"] if v["first_in_view_unix_s"] is not None]
+    assert seen and all(START <= v["first_in_view_unix_s"] <= START + 3.0 for v in seen)
+    assert truth["route_ne_m"] == [list(p) for p in route_of(world)]
+
+
+def test_recording_is_deterministic(tmp_path: Path, recording: Path) -> None:
+    record(preset("mixed"), tmp_path, duration_s=3.0, start_unix_s=START)
+    assert (tmp_path / "mission.tlog").read_bytes() == (recording / "mission.tlog").read_bytes()
+    names = sorted(p.name for p in (tmp_path / "frames").iterdir())
+    assert names == sorted(p.name for p in (recording / "frames").iterdir())
+    for name in names[::7]:
+        assert (tmp_path / "frames" / name).read_bytes() == (
+            recording / "frames" / name
+        ).read_bytes()
+
+
+# -- scoring ------------------------------------------------------------------------
+
+
+def _truth() -> GroundTruth:
+    return GroundTruth(
+        (
+            TrueVictim(1, 2.0, 2.0, Urgency.LIGHT, first_in_view_unix_s=100.0),
+            TrueVictim(2, 6.0, 5.0, Urgency.MEDIUM, first_in_view_unix_s=110.0),
+            # Buried: only a hand at (9.8, 3.6) shows, 0.9 m from the body centre.
+            TrueVictim(3, 9.0, 3.2, Urgency.CRITICAL, 9.8, 3.6, first_in_view_unix_s=120.0),
+            TrueVictim(4, 10.5, 7.0, Urgency.LIGHT, first_in_view_unix_s=None),
+        )
+    )
+
+
+def test_score_on_a_hand_made_case() -> None:
+    reports = [
+        ReportedVictim(11, Urgency.LIGHT, 2.1, 2.0, 101.0, 103.0),  # 0.1 m, right class
+        ReportedVictim(12, Urgency.LIGHT, 6.0, 5.4, 112.0),  # 0.4 m, wrong class
+        ReportedVictim(13, Urgency.LIGHT, 2.5, 2.3, 105.0),  # a duplicate of victim 1
+        ReportedVictim(14, Urgency.CRITICAL, 9.85, 3.65, 125.0),  # at the hand: 0.07 m
+        ReportedVictim(15, Urgency.MEDIUM, 4.0, 7.5, 130.0),  # nothing there
+    ]
+    r = score(_truth(), reports)
+    assert r.recall == pytest.approx(3 / 4)
+    assert r.missed_ids == (4,)
+    assert r.false_victims == 1
+    assert r.duplicates == {1: 1}
+    assert {(m.true_id, m.reported_id) for m in r.matches} == {(1, 11), (2, 12), (3, 14)}
+    assert r.error_median_m == pytest.approx(0.1)
+    assert r.error_max_m == pytest.approx(0.4)
+    assert r.error_p95_m == pytest.approx(0.1 + 0.9 * 0.3)  # numpy's linear percentile
+    assert r.urgency_accuracy == pytest.approx(2 / 3)
+    assert sorted(r.time_to_report_s) == pytest.approx([2.0, 3.0, 5.0])  # 103-100, 112-110, 125-120
+
+
+def test_hungarian_prefers_the_globally_best_assignment() -> None:
+    truth = GroundTruth(
+        (TrueVictim(1, 0.0, 0.0, Urgency.LIGHT), TrueVictim(2, 1.2, 0.0, Urgency.LIGHT))
+    )
+    # Greedy would give report A (0.55 m from 1, 0.65 m from 2) to victim 1 and leave B,
+    # 0.95 m from 1 and 2.15 m from 2, out; the optimum pairs A-2 and B-1.
+    reports = [
+        ReportedVictim(1, Urgency.LIGHT, 0.55, 0.0, 0.0),
+        ReportedVictim(2, Urgency.LIGHT, -0.95, 0.0, 0.0),
+    ]
+    r = score(truth, reports)
+    assert r.recall == 1.0 and r.false_victims == 0
+    assert {(m.true_id, m.reported_id) for m in r.matches} == {(1, 2), (2, 1)}
+
+
+def test_empty_world_scores_false_victims_only() -> None:
+    r = score(GroundTruth(()), [ReportedVictim(1, Urgency.LIGHT, 1.0, 1.0, 0.0)])
+    assert r.recall is None and r.false_victims == 1 and r.urgency_accuracy is None
+
+
+def test_bad_report_file_names_the_key(tmp_path: Path) -> None:
+    path = tmp_path / "r.json"
+    path.write_text(
+        json.dumps(
+            {
+                "victims": [
+                    {
+                        "victim_id": 1,
+                        "urgency": "SEVERE",
+                        "north_m": 1,
+                        "east_m": 2,
+                        "first_seen_unix_s": 0,
+                    }
+                ]
+            }
+        )
+    )
+    with pytest.raises(ScoreInputError, match=r"victims\[0\]\.urgency = 'SEVERE'"):
+        load_report(path)
+    path.write_text("{not json")
+    with pytest.raises(ScoreInputError, match="not valid JSON"):
+        load_report(path)
+
+
+def test_cli_record_then_score(tmp_path: Path) -> None:
+    out = tmp_path / "m"
+    cmd = [sys.executable, "-m", "scenarios.cli"]
+    done = subprocess.run(
+        [
+            *cmd,
+            "record",
+            "--preset",
+            "light",
+            "--out",
+            str(out),
+            "--duration-s",
+            "1",
+            "--start-unix-s",
+            str(START),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    truth = json.loads((out / "ground_truth.json").read_text())
+    v = truth["victims"][0]
+    report = tmp_path / "report.json"
+    report.write_text(
+        json.dumps(
+            {
+                "victims": [
+                    {
+                        "victim_id": 7,
+                        "urgency": v["urgency"],
+                        "north_m": v["north_m"] + 0.3,
+                        "east_m": v["east_m"],
+                        "first_seen_unix_s": START + 0.5,
+                        "extra": 1,
+                    }
+                ]
+            }
+        )
+    )
+    done = subprocess.run(
+        [
+            *cmd,
+            "score",
+            "--truth",
+            str(out / "ground_truth.json"),
+            "--victims",
+            str(report),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    figures = json.loads(done.stdout)
+    assert figures["recall"] == 1.0 and figures["urgency_accuracy"] == 1.0
+    # The distance is to the nearer of the body centre and the uncovered part's centroid.
+    to_visible = math.hypot(
+        v["north_m"] + 0.3 - v["visible_north_m"], v["east_m"] - v["visible_east_m"]
+    )
+    assert figures["error_median_m"] == pytest.approx(min(0.3, to_visible), abs=1e-6)
+    bad = subprocess.run(
+        [*cmd, "record", "--world", str(tmp_path / "none.toml"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (
+        bad.returncode == 2
+        and "cannot read world file" in bad.stderr
+        and "Traceback" not in bad.stderr
+    )
+
+
+# -- camera server ------------------------------------------------------------------
+
+
+def _read_exact(sock: socket.socket, n: int) -> bytes:
+    buf = b""
+    while len(buf) < n:
+        chunk = sock.recv(n - len(buf))
+        if not chunk:
+            raise AssertionError("camera server closed the connection")
+        buf += chunk
+    return buf
+
+
+def test_camera_server_sends_length_time_jpeg_frames() -> None:
+    world = preset("light")
+    pose = TruePose(0.0, 4.3, 3.2, -0.1, 0.0, 0.0, 0.0)
+    clock = iter(START + 0.1 * k for k in range(10_000))
+    server = CameraServer(Renderer(world), lambda: (pose, next(clock)), fps=20.0).start()
+    try:
+        with socket.create_connection(server.address, timeout=10.0) as sock:
+            stamps = []
+            for _ in range(3):
+                length, t_us = HEADER.unpack(_read_exact(sock, HEADER.size))
+                jpeg = _read_exact(sock, length - 8)
+                image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+                assert image is not None and image.shape == (480, 640, 3)
+                stamps.append(t_us)
+            assert stamps == sorted(stamps) and len(set(stamps)) == 3
+            assert all(t >= START * 1e6 for t in stamps)
+    finally:
+        server.close()
+    assert struct.calcsize(">IQ") == HEADER.size == 12
