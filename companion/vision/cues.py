@@ -5,9 +5,9 @@ not change when the light gets dimmer or the enhancement brightens a pixel, so t
 same thresholds hold in a dark zone as in full light. Where R+G+B is small the
 ratios are mostly noise, so pixels below ``min_intensity`` carry no colour.
 
-- Skin: the skin locus of Soriano et al. (2000) in rg, two parabolas in r, minus a
-  disc around grey (white light on grey things): covers pale to dark skin under
-  white, warm and cool light.
+- Skin: a sector of the rg plane around grey (see skin_locus): pale to dark skin
+  under white and warm light. (The Soriano et al. skin locus was tried first: it
+  cuts off saturated brown skin tones such as (141, 85, 36).)
 - Both must differ from the background's chromaticity (the frame's median rg: the
   floor fills most of a rover's view): a beige floor inside the skin locus is not
   skin. Pale skin on a beige floor is then missed: a limit of colour cues.
@@ -64,12 +64,32 @@ def chromaticity(image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return r * inv, g * inv, s
 
 
+SKIN_HUE_DEG = (-30.0, 10.0)  # direction from grey in the (r, g) plane
+SKIN_SATURATION = (0.035, 0.26)  # distance from grey in the (r, g) plane
+
+
 def skin_locus(r: np.ndarray, g: np.ndarray, grey_radius: float) -> np.ndarray:
-    """Boolean mask of the Soriano skin locus in rg chromaticity."""
-    upper = -1.3767 * r * r + 1.0743 * r + 0.1452
-    lower = -0.776 * r * r + 0.5601 * r + 0.1766
-    grey2 = (r - GREY_R) ** 2 + (g - GREY_G) ** 2
-    locus: np.ndarray = (g < upper) & (g > lower) & (r > 0.2) & (r < 0.6) & (grey2 > grey_radius**2)
+    """Skin chromaticities: a sector around grey in the rg plane.
+
+    With dr = r - 1/3, dg = g - 1/3, skin lies at hue atan2(dg, dr) in [-30, +10] deg
+    (reddish-orange, slightly magenta to slightly yellow) and saturation
+    hypot(dr, dg) in [0.035, 0.26]: pale skin under white light (~0.05), tan and
+    dark skin (~0.1-0.13), saturated brown/sienna skin in warm light (~0.2). Orange
+    and red paint and fabric are more saturated (> 0.3). Wood and cardboard fall
+    inside: shape tests have to reject them.
+    """
+    dr = r - GREY_R
+    dg = g - GREY_G
+    sat = np.sqrt(dr * dr + dg * dg)
+    lo, hi = (math.tan(math.radians(a)) for a in SKIN_HUE_DEG)
+    # Hue window for dr > 0: lo * dr <= dg <= hi * dr.
+    locus: np.ndarray = (
+        (dr > 0.0)
+        & (dg >= lo * dr)
+        & (dg <= hi * dr)
+        & (sat >= max(grey_radius, SKIN_SATURATION[0]))
+        & (sat <= SKIN_SATURATION[1])
+    )
     return locus
 
 
@@ -175,7 +195,7 @@ def looks_man_made(shape: Shape, luma_std: float, flat_luma_std: float = 6.0) ->
     return shape.corners <= 5 and shape.solidity > 0.9 and luma_std < flat_luma_std
 
 
-def text_like_labels(stats: np.ndarray, min_neighbours: int = 1) -> set[int]:
+def text_like_labels(stats: np.ndarray, min_neighbours: int = 2) -> set[int]:
     """Components that sit in a row of similar-height components: a line of text.
 
     Overlay text breaks into glyphs of one height side by side on one baseline; body
