@@ -51,7 +51,8 @@ def _recv(conn: Any, kind: str | list[str], timeout_s: float = WAIT_S, **cond: A
 
 @pytest.fixture
 def rover() -> Iterator[SimRover]:
-    r = SimRover(preset("light"), ["udpin:127.0.0.1:0", "udpin:127.0.0.1:0"], time_scale=1.0)
+    # Twice real time: the checks use the autopilot's own clock, so they do not change.
+    r = SimRover(preset("light"), ["udpin:127.0.0.1:0", "udpin:127.0.0.1:0"], time_scale=2.0)
     r.start()
     yield r
     r.close()
@@ -145,7 +146,9 @@ def test_routes_known_messages_to_a_heard_ground_station_but_not_unknown_ids(
 def test_nothing_is_forwarded_to_a_ground_station_before_it_speaks() -> None:
     gcs = _conn("udpin:127.0.0.1:0", source_system=255)
     gcs_port = gcs.port.getsockname()[1]
-    with SimRover(preset("empty"), ["udpin:127.0.0.1:0", f"udpout:127.0.0.1:{gcs_port}"]) as r:
+    with SimRover(
+        preset("empty"), ["udpin:127.0.0.1:0", f"udpout:127.0.0.1:{gcs_port}"], time_scale=4.0
+    ) as r:
         companion = _client(r.local_address(0)[1])
         _recv(companion, "HEARTBEAT")
         _recv(gcs, "HEARTBEAT")  # the rover's own streams reach it anyway
@@ -194,7 +197,7 @@ def test_reboot_command_is_acked_then_reboots(rover: SimRover) -> None:
 
 
 def test_serial_link_over_a_pty() -> None:
-    with SimRover(preset("empty"), ["pty"]) as r:
+    with SimRover(preset("empty"), ["pty"], time_scale=4.0) as r:
         conn = _conn(r.pty_path(0), baud=57600, dialect="common")
         hb = _recv(conn, "HEARTBEAT")
         assert hb.type == mavutil.mavlink.MAV_TYPE_GROUND_ROVER
