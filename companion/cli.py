@@ -1,6 +1,8 @@
 """``rescue-companion``: the program on the Pi.
 
-Exit status: 0 success, 1 runtime failure, 2 bad configuration or usage.
+Exit status: 0 success (or stopped by SIGTERM/SIGINT), 1 runtime failure, 2 bad
+configuration or usage (systemd does not restart it: RestartPreventExitStatus=2),
+3 the state database cannot be used.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from companion.config import Config, ConfigError, load_config
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
+EXIT_STATE = 3
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +29,20 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     check = sub.add_parser("check-config", help="validate a config file and print the result")
     check.add_argument("--config", type=Path, required=True)
+    run = sub.add_parser("run", help="run the companion service (systemd Type=notify)")
+    run.add_argument("--config", type=Path, required=True)
+    run.add_argument(
+        "--debug-processing-delay-s",
+        type=float,
+        default=0.0,
+        help="fault injection for tests: extra processing time per frame",
+    )
+    run.add_argument(
+        "--debug-stall-after-s",
+        type=float,
+        default=None,
+        help="fault injection for tests: the processing loop hangs after this long",
+    )
     rep = sub.add_parser("replay", help="run the pipeline offline on a recorded mission")
     rep.add_argument("--config", type=Path, required=True)
     rep.add_argument("--tlog", type=Path, required=True, help="the autopilot's telemetry log")
@@ -49,6 +66,40 @@ def _check_config(config: Config) -> int:
         f"state in {config.paths.state_dir}"
     )
     return EXIT_OK
+
+
+def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
+    import signal
+
+    from companion.sdnotify import Notifier
+    from companion.service import FaultInjection, Service
+    from companion.store import StoreError
+    from companion.vision import VisionError
+    from mavlink_io.errors import LinkError, SigningError, TlogError
+
+    notifier = Notifier()
+    try:
+        service = Service(config, notifier, FaultInjection(delay_s, stall_after_s))
+    except (SigningError, VisionError, TlogError) as exc:
+        print(f"rescue-companion: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    except StoreError as exc:
+        print(f"rescue-companion: {exc}", file=sys.stderr)
+        return EXIT_STATE
+    except LinkError as exc:
+        print(f"rescue-companion: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+
+    def on_signal(signum: int, _frame: object) -> None:
+        log.info("signal %s: stopping", signal.Signals(signum).name)
+        service.stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    try:
+        return service.run()
+    finally:
+        notifier.close()
 
 
 def _replay(config: Config, tlog: Path, frames: Path, out: Path) -> int:
@@ -94,6 +145,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_CONFIG
     if args.command == "check-config":
         return _check_config(config)
+    if args.command == "run":
+        return _run(config, args.debug_processing_delay_s, args.debug_stall_after_s)
     if args.command == "replay":
         return _replay(config, args.tlog, args.frames, args.out)
     raise AssertionError(f"unhandled command {args.command}")  # argparse guarantees the set

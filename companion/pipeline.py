@@ -79,7 +79,9 @@ class Pipeline:
             self.counters.frames_without_pose += 1
             return FrameOutcome(frame.t_unix_s, None, skipped=f"no pose: {exc.reason}")
         start = time.perf_counter()
-        geometry = FrameGeometry.from_pose(self.camera, pose, self._geo)
+        geometry = FrameGeometry.from_pose(
+            self.camera, pose, self._geo, self.config.detector.body_silhouette_fill
+        )
         detections = self.detector.detect(frame.image, geometry, frame.t_mono_s)
         observations = [
             o for d in detections if (o := self._observe(d, pose, geometry, frame)) is not None

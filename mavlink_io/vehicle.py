@@ -10,7 +10,9 @@ Identity: the vehicle's system ID is learned from the autopilot's HEARTBEAT
 autopilot other than MAV_AUTOPILOT_INVALID), unless ``system_id`` is configured. We
 send as (vehicle sysid, ``component_id``), and our HEARTBEAT at 1 Hz says
 MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID and the health callback's
-MAV_STATE. Nothing is sent before the sysid is known (QGC would drop it anyway).
+MAV_STATE. Before the sysid is known only that HEARTBEAT goes out, as the configured
+system ID or 1: a UDP or TCP peer that answers only who spoke first (an autopilot's
+udpin, mavlink-router's UDP server) must hear us to start sending.
 
 Streams: on the first heartbeat, after a link loss and after an autopilot reboot
 (its boot time jumps backwards), ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT,
@@ -292,7 +294,7 @@ class VehicleLink:
                 self.link.name,
                 now - self._last_heartbeat_s,
             )
-        if self._sysid and now >= self._next_heartbeat_s:
+        if now >= self._next_heartbeat_s:
             self._next_heartbeat_s = now + self.settings.heartbeat_period_s
             self._send_heartbeat()
         sent = self._request_sent_s
@@ -397,11 +399,16 @@ class VehicleLink:
         except Exception:  # the health callback is someone else's code
             log.exception("health callback failed")
             status = 5  # MAV_STATE_CRITICAL
-        self.send(
-            m.MAVLink_heartbeat_message(
-                MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, status, 3
-            )
+        heartbeat = m.MAVLink_heartbeat_message(
+            MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, status, 3
         )
+        if self._sysid:
+            self.send(heartbeat)
+            return
+        try:  # provisional identity: see the module docstring
+            self.link.write(self.codec.encode(heartbeat))
+        except LinkError as exc:
+            log.debug("%s: heartbeat failed: %s", self.link.name, exc)
 
     def _stream_rates(self) -> list[tuple[int, float]]:
         s = self.settings
@@ -423,6 +430,7 @@ class VehicleLink:
                 self._stream_method = ""
         m = self.codec.module
         confirmation = min(self._request_attempts, 255)  # 0 first, then 1, 2 on retries
+        self.counters.stream_requests += 1  # before sending: a peer may answer at once
         for msg_id, rate_hz in self._stream_rates():
             interval_us = round(1e6 / rate_hz) if rate_hz > 0 else -1  # -1: stop it
             self.send(
@@ -440,7 +448,6 @@ class VehicleLink:
                     0.0,
                 )
             )
-        self.counters.stream_requests += 1
         self._request_attempts += 1
         self._request_sent_s = now
 
@@ -472,6 +479,7 @@ class VehicleLink:
         m = self.codec.module
         s = self.settings
         position_hz = max(s.local_position_rate_hz, s.global_position_rate_hz)
+        self.counters.stream_requests += 1
         for stream_id, rate_hz in (
             (MAV_DATA_STREAM_EXTRA1, s.attitude_rate_hz),
             (MAV_DATA_STREAM_POSITION, position_hz),
@@ -481,4 +489,3 @@ class VehicleLink:
                     self._sysid, AUTOPILOT_COMPONENT, stream_id, max(1, round(rate_hz)), 1
                 )
             )
-        self.counters.stream_requests += 1

@@ -1,0 +1,567 @@
+"""``rescue-companion run``: the service on the Pi.
+
+Threads (docs/ARCHITECTURE.md):
+- vehicle link (mavlink_io.VehicleLink): telemetry in, our HEARTBEAT out;
+- HQ link (optional, mavlink_io.HqLink): acknowledgements and operator actions;
+- camera: frames into a one-slot mailbox (a newer frame replaces an unprocessed
+  one; the drop is counted);
+- processing: pipeline, operator actions, persistence, systemd watchdog;
+- reporter: outbox sends and resends, people-facing messages, RESCUE_STATUS.
+
+The processing thread commits a frame's consequences (tracker, what was reported,
+the new reports) in one SQLite transaction before the reporter sends anything, so
+after a crash nothing sent is unknown and nothing unacknowledged is lost.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from companion.calibration import camera_model
+from companion.config import Config
+from companion.pipeline import FrameOutcome, Pipeline
+from companion.reporting import Decision, ReportPolicy
+from companion.sdnotify import Notifier, watchdog_period_s
+from companion.sources import (
+    CameraError,
+    CameraTimeout,
+    EndOfStream,
+    Frame,
+    open_camera,
+    write_frame,
+)
+from companion.store import Store
+from companion.vision import make_detector
+from fusion.tracker import VictimTracker
+from fusion.types import TrackState
+from mavlink_io import convert, dialect, statustext
+from mavlink_io.codec import Codec, MavMessage
+from mavlink_io.hqlink import HqLink
+from mavlink_io.link import ReconnectingLink
+from mavlink_io.linkspec import parse_link
+from mavlink_io.reliable import Deduplicator, Outbox
+from mavlink_io.signing import Signing, load_signing
+from mavlink_io.tlog import TlogWriter
+from mavlink_io.vehicle import VehicleLink, VehicleSettings
+
+log = logging.getLogger(__name__)
+
+MAV_STATE_STANDBY = 3
+MAV_STATE_ACTIVE = 4
+MAV_STATE_CRITICAL = 5
+_SAVE_PERIOD_S = 5.0  # the tracker is saved at least this often while frames flow
+_MAILBOX_WAIT_S = 0.25
+_SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
+
+
+@dataclass(frozen=True)
+class FaultInjection:
+    """Testing aids for the service tests (CLI --debug-* flags); off by default."""
+
+    processing_delay_s: float = 0.0  # extra time per frame: processing falls behind
+    stall_after_s: float | None = None  # the processing loop hangs after this long
+
+
+class FrameMailbox:
+    """One frame slot between the camera and processing threads."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._frame: Frame | None = None
+        self.received = 0
+        self.dropped = 0
+
+    def put(self, frame: Frame) -> None:
+        with self._cond:
+            if self._frame is not None:
+                self.dropped += 1
+            self._frame = frame
+            self.received += 1
+            self._cond.notify()
+
+    def get(self, timeout_s: float) -> Frame:
+        """The newest frame; CameraTimeout when none arrives in time."""
+        with self._cond:
+            if self._frame is None and not self._cond.wait_for(
+                lambda: self._frame is not None, timeout_s
+            ):
+                raise CameraTimeout(f"no frame within {timeout_s} s")
+            frame, self._frame = self._frame, None
+            assert frame is not None  # wait_for guarantees it
+            return frame
+
+
+class Service:
+    """The companion's runtime. Build, ``run(stop)``, and it cleans up on return."""
+
+    def __init__(
+        self, config: Config, notifier: Notifier, faults: FaultInjection | None = None
+    ) -> None:
+        self.config = config
+        self.notifier = notifier
+        self.faults = faults or FaultInjection()
+        self.stop = threading.Event()
+        self.started_mono_s = time.monotonic()
+        self.failure: str | None = None
+        self._m = dialect.load()
+        # Everything that can refuse to start does so here, before any thread runs.
+        self.signing: Signing | None = (
+            load_signing(config.signing.key_file, config.signing.link_id)
+            if config.signing.enabled and config.signing.key_file is not None
+            else None
+        )
+        self.store = Store(config.paths.state_dir / "companion.sqlite")
+        self.tracker, self.policy, self._report_seq = self._restore()
+        self.camera_model = camera_model(config.camera)
+        self.pipeline = Pipeline(
+            config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
+        )
+        self.tlog = TlogWriter(config.paths.tlogs, int(config.paths.tlog_max_mb * 1e6))
+        self.frames_dir = (
+            config.paths.state_dir / "frames" / time.strftime("%Y%m%d-%H%M%S")
+            if config.paths.record_frames
+            else None
+        )
+        self.mailbox = FrameMailbox()
+        self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
+        self.people: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
+        self.dedupe = Deduplicator()
+        self.chunk_ids = statustext.ChunkIds()
+        self._wake_reporter = threading.Event()
+        self._camera_ok = False
+        self._vision_ms: deque[float] = deque(maxlen=50)
+        self._processed: deque[float] = deque(maxlen=100)  # monotonic times of processed frames
+        self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
+        self._floor_down_m = config.geolocation.floor_down_m
+        self.outbox = Outbox(
+            self._send_dialect,
+            store=self.store,
+            initial_s=config.hq.resend_initial_s,
+            max_s=config.hq.resend_max_s,
+        )
+        v = config.vehicle
+        self.vehicle = VehicleLink(
+            ReconnectingLink(parse_link(v.url), max_backoff_s=v.reopen_max_backoff_s),
+            VehicleSettings(
+                system_id=v.system_id,
+                component_id=v.component_id,
+                heartbeat_timeout_s=v.heartbeat_timeout_s,
+                heartbeat_period_s=config.reporting.status_period_s,
+                attitude_rate_hz=v.attitude_rate_hz,
+                local_position_rate_hz=v.local_position_rate_hz,
+                global_position_rate_hz=v.global_position_rate_hz,
+                pose_history_s=v.pose_history_s,
+            ),
+            codec=Codec(v.system_id or 1, v.component_id, self.signing),
+            health=self._health,
+            tlog=self.tlog,
+            on_dialect=self._on_dialect,
+        )
+        self.hq: HqLink | None = None
+        if config.hq.url:
+            self.hq = HqLink(
+                ReconnectingLink(parse_link(config.hq.url), max_backoff_s=v.reopen_max_backoff_s),
+                Codec(v.system_id or 1, v.component_id, self.signing),
+                self._on_dialect,
+                self.tlog,
+            )
+        self.camera = open_camera(config.camera)
+
+    # -- state -------------------------------------------------------------------------
+
+    def _restore(self) -> tuple[VictimTracker, ReportPolicy, int]:
+        policy = ReportPolicy(self.config.reporting.move_threshold_sigma)
+        snapshot = self.store.get("tracker")
+        tracker = (
+            VictimTracker.restore(self.config.tracker, snapshot)
+            if snapshot is not None
+            else VictimTracker(self.config.tracker)
+        )
+        reported = self.store.get("reported")
+        if reported is not None:
+            policy.restore(reported)
+        seq = int(self.store.get("report_seq") or 0)
+        if snapshot is not None:
+            log.info(
+                "restored %d victims from %s (next report %d)",
+                len(tracker.victims()),
+                self.store.path,
+                seq + 1,
+            )
+        return tracker, policy, seq
+
+    def _commit(self, decisions: list[Decision]) -> None:
+        """Persist the tracker, the policy and the new reports in one transaction."""
+        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
+        origin = self.vehicle.origin
+        now = time.time()
+        with self.store.transaction():
+            for d in decisions:
+                self._report_seq += 1
+                report = d.victim.to_report(sysid, self._floor_down_m, origin)
+                msg = convert.victim_report_to_msg(
+                    report, self._report_seq, d.flags, now, d.victim.merged_into, self._m
+                )
+                self.outbox.submit(msg, send=False)
+                self._queue_people(d, report)
+            self.store.set("tracker", self.tracker.snapshot())
+            self.store.set("reported", self.policy.snapshot())
+            self.store.set("report_seq", self._report_seq)
+        self._wake_reporter.set()
+
+    def _queue_people(self, d: Decision, report: Any) -> None:
+        rep = self.config.reporting
+        msgs: list[MavMessage] = []
+        if d.announce and rep.statustext:
+            msgs += statustext.victim_statustext(report, self.chunk_ids, self._m)
+        if rep.map_marker and d.victim.state in (
+            TrackState.CONFIRMED,
+            TrackState.NOT_SEEN_RECENTLY,
+        ):
+            origin = self.vehicle.origin
+            pose = self.vehicle.poses.latest()
+            marker = convert.victim_marker_msg(
+                report,
+                pose.t_boot_s if pose else 0.0,
+                time.time(),
+                origin.alt_m if origin else None,
+                self._m,
+            )
+            if marker is not None:
+                msgs.append(marker)
+        for msg in msgs:
+            try:
+                self.people.put_nowait(msg)
+            except queue.Full:
+                log.warning("people-facing queue full; %s dropped", msg.get_type())
+
+    def announce(self, text: str, severity: int) -> None:
+        """A status line for people (QGC shows it; NOTICE and above are spoken)."""
+        log.info("announce: %s", text)
+        if not self.config.reporting.statustext:
+            return
+        for msg in statustext.statustext_msgs(text, severity, self.chunk_ids, self._m):
+            try:
+                self.people.put_nowait(msg)
+            except queue.Full:
+                return
+        self._wake_reporter.set()
+
+    # -- links ---------------------------------------------------------------------------
+
+    def _health(self) -> int:
+        if not self._camera_ok:
+            return MAV_STATE_CRITICAL
+        return MAV_STATE_ACTIVE if self.vehicle.poses.latest() is not None else MAV_STATE_STANDBY
+
+    def _on_dialect(self, msg: MavMessage) -> None:
+        """From a link thread: acknowledgements apply at once, actions go to processing."""
+        if msg.get_msgId() == dialect.RESCUE_ACK_ID:
+            if self.outbox.on_ack(msg):
+                log.debug("report %d acknowledged", msg.seq)
+            return
+        try:
+            self.actions.put_nowait(msg)
+        except queue.Full:
+            log.warning(
+                "operator action queue full; action %d dropped (the HQ resends)", msg.action_seq
+            )
+
+    def _send_dialect(self, msg: MavMessage) -> None:
+        if self.hq is not None:
+            if self.vehicle.sysid:
+                self.hq.codec.src_system = self.vehicle.sysid
+            self.hq.send(msg)
+        if self.config.hq.tunnel:
+            self.vehicle.send_tunnel(msg)
+
+    def _send_plain(self, msg: MavMessage) -> None:
+        self.vehicle.send(msg)
+        if self.hq is not None:
+            self.hq.send(msg)
+
+    # -- threads -----------------------------------------------------------------------
+
+    def _guard(self, name: str, body: Callable[[], None]) -> Callable[[], None]:
+        def run() -> None:
+            try:
+                body()
+            except Exception as exc:  # a thread's death must stop the service, loudly
+                log.exception("%s thread failed", name)
+                self.failure = f"{name} thread failed: {exc}"
+                self.stop.set()
+
+        return run
+
+    def _camera_loop(self) -> None:
+        was_ok: bool | None = None
+        while not self.stop.is_set():
+            try:
+                frame = self.camera.read(timeout_s=0.5)
+            except CameraTimeout:
+                frame = None
+            except EndOfStream as exc:
+                log.info("camera: %s", exc)
+                self._camera_ok = False
+                self.announce("Camera stream ended", 4)
+                self.stop.wait()
+                return
+            except CameraError as exc:
+                log.debug("camera: %s", exc)
+                frame = None
+            ok = frame is not None or self.camera.healthy
+            if ok != was_ok:
+                if was_ok is not None:
+                    self.announce("Camera back" if ok else "Camera lost", 6 if ok else 3)
+                was_ok = ok
+            self._camera_ok = ok
+            if frame is not None:
+                self.mailbox.put(frame)
+                if self.frames_dir is not None:
+                    write_frame(self.frames_dir, frame)
+
+    def _processing_loop(self) -> None:
+        watchdog_s = watchdog_period_s()
+        next_ping = 0.0
+        last_save = time.monotonic()
+        while not self.stop.is_set():
+            stall = self.faults.stall_after_s
+            if stall is not None and time.monotonic() - self.started_mono_s > stall:
+                log.warning("fault injection: the processing loop stalls now")
+                self.stop.wait()
+                return
+            self._handle_actions()
+            try:
+                frame = self.mailbox.get(_MAILBOX_WAIT_S)
+            except CameraTimeout:
+                frame = None
+            if frame is not None:
+                outcome = self.pipeline.process(frame, self.vehicle.poses)
+                self._after_frame(outcome)
+                if (
+                    outcome.decisions
+                    or (outcome.events and time.monotonic() - last_save > 0.5)
+                    or (time.monotonic() - last_save > _SAVE_PERIOD_S)
+                ):
+                    self._commit(outcome.decisions)
+                    last_save = time.monotonic()
+                if self.faults.processing_delay_s:
+                    self.stop.wait(self.faults.processing_delay_s)
+            now = time.monotonic()
+            if watchdog_s is not None and now >= next_ping:
+                self.notifier.watchdog()
+                next_ping = now + watchdog_s
+
+    def _after_frame(self, outcome: FrameOutcome) -> None:
+        if outcome.pose is not None:
+            self._floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
+            self._vision_ms.append(outcome.vision_ms)
+        self._processed.append(time.monotonic())
+        victims = self.tracker.victims(include_tentative=True)
+        confirmed = sum(
+            1 for v in victims if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
+        )
+        self._counts = (confirmed, sum(1 for v in victims if v.state == TrackState.TENTATIVE))
+
+    def _handle_actions(self) -> None:
+        m = self._m
+        while True:
+            try:
+                msg = self.actions.get_nowait()
+            except queue.Empty:
+                return
+            result = m.RESCUE_ACK_RESULT_ACCEPTED
+            if self.dedupe.check(msg):
+                result = m.RESCUE_ACK_RESULT_DUPLICATE
+            else:
+                decisions = self._apply_action(msg)
+                if decisions is None:
+                    result = m.RESCUE_ACK_RESULT_REJECTED
+                else:
+                    self._commit(decisions)
+            ack = m.MAVLink_rescue_ack_message(
+                msg.get_srcSystem(),
+                msg.get_srcComponent(),
+                dialect.RESCUE_OPERATOR_ACTION_ID,
+                msg.action_seq,
+                result,
+            )
+            self._send_dialect(ack)
+
+    def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
+        """The reports an operator action causes; None if it cannot be applied."""
+        m = self._m
+        now = time.time()
+        if msg.action == m.RESCUE_OPERATOR_ACTION_RESEND:
+            wanted = [v for v in self.tracker.victims() if msg.victim_id in (0, v.victim_id)]
+            return self.policy.requested(wanted)
+        states = {
+            m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
+            m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
+        }
+        state = states.get(msg.action)
+        if state is None:
+            log.warning("operator action %d: unknown action %d", msg.action_seq, msg.action)
+            return None
+        try:
+            event = self.tracker.mark(msg.victim_id, state, now)
+        except (KeyError, ValueError) as exc:
+            log.warning("operator action %d: %s", msg.action_seq, exc)
+            return None
+        log.info("operator marked victim %d %s", msg.victim_id, state.name)
+        return self.policy.decide([event], self.tracker.victims())
+
+    def _reporter_loop(self) -> None:
+        period = self.config.reporting.status_period_s
+        next_status = 0.0
+        next_summary = time.monotonic() + _SUMMARY_PERIOD_S
+        was_connected = False
+        while not self.stop.is_set():
+            self.outbox.poll()
+            while True:
+                try:
+                    self._send_plain(self.people.get_nowait())
+                except queue.Empty:
+                    break
+            now = time.monotonic()
+            connected = self.vehicle.connected
+            if connected != was_connected:
+                self._link_changed(connected)
+                was_connected = connected
+            if now >= next_status:
+                next_status = now + period
+                self._send_status(now)
+            if now >= next_summary:
+                next_summary = now + _SUMMARY_PERIOD_S
+                self._log_summary()
+            due = self.outbox.seconds_until_due()
+            wait = next_status - now if due is None else min(due, next_status - now)
+            self._wake_reporter.wait(max(0.01, wait))
+            self._wake_reporter.clear()
+
+    def _link_changed(self, connected: bool) -> None:
+        if connected:
+            known = self._counts[0] or len(self.tracker.victims())
+            self.announce(f"Rescue companion online, {known} victims known", 5)
+            self.outbox.resend_all_now()
+        else:
+            # The autopilot cannot hear this; the HQ link (if any) can.
+            self.announce("Rescue companion: vehicle link lost", 3)
+
+    def _log_summary(self) -> None:
+        c = self.pipeline.counters
+        rejected = ", ".join(f"{k}: {n}" for k, n in c.rejected.most_common(3)) or "none"
+        log.info(
+            "%d frames (%d without a pose, %d dropped), %d detections, %d observations "
+            "(rejected: %s), %d confirmed victims, %d reports unacknowledged",
+            c.frames,
+            c.frames_without_pose,
+            self.mailbox.dropped,
+            c.detections,
+            c.observations,
+            rejected,
+            self._counts[0],
+            self.outbox.pending_count,
+        )
+
+    def _send_status(self, now: float) -> None:
+        m = self._m
+        recent = [t for t in self._processed if now - t <= 5.0]
+        fps = len(recent) / 5.0
+        drop_pct = 100.0 * self.mailbox.dropped / max(1, self.mailbox.received)
+        vision_ms = statistics.median(self._vision_ms) if self._vision_ms else 0.0
+        flags = 0
+        if self.vehicle.connected:
+            flags |= m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
+        if self._camera_ok:
+            flags |= m.RESCUE_STATUS_FLAGS_CAMERA
+        if self.hq is not None and self.hq.heard_within(self.config.hq.hq_timeout_s):
+            flags |= m.RESCUE_STATUS_FLAGS_HQ_LINK
+        if self.vehicle.clock.synced:
+            flags |= m.RESCUE_STATUS_FLAGS_CLOCK_SYNCED
+        if self.vehicle.origin is not None:
+            flags |= m.RESCUE_STATUS_FLAGS_GLOBAL_ORIGIN
+        if self.tlog.recording:
+            flags |= m.RESCUE_STATUS_FLAGS_RECORDING
+        if self.signing is not None:
+            flags |= m.RESCUE_STATUS_FLAGS_SIGNING
+        confirmed, tentative = self._counts
+        pending = self.outbox.pending_count
+        self._send_dialect(
+            m.MAVLink_rescue_status_message(
+                int(now - self.started_mono_s),
+                fps,
+                drop_pct,
+                vision_ms,
+                flags,
+                min(confirmed, 0xFFFF),
+                min(tentative, 0xFFFF),
+                min(pending, 0xFFFF),
+            )
+        )
+        link = "up" if self.vehicle.connected else "down"
+        camera = "ok" if self._camera_ok else "lost"
+        self.notifier.status(
+            f"vehicle {link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
+            f"{confirmed} victims, {pending} unacknowledged"
+        )
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def run(self) -> int:
+        """Run until ``stop`` is set; 0 after a clean stop, 1 after a thread failed."""
+        threads = [
+            threading.Thread(target=self._guard(n, f), name=n, daemon=True)
+            for n, f in (
+                ("camera", self._camera_loop),
+                ("processing", self._processing_loop),
+                ("reporter", self._reporter_loop),
+            )
+        ]
+        for t in threads:
+            t.start()
+        self.notifier.ready(
+            f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
+        )
+        log.info(
+            "running: vehicle %s, camera %s", self.config.vehicle.url, self.config.camera.source
+        )
+        self.stop.wait()
+        self.notifier.stopping()
+        log.info("stopping")
+        for t in threads:
+            t.join(timeout=2.0)
+        self.close()
+        if self.failure:
+            log.error("%s", self.failure)
+            return 1
+        return 0
+
+    def close(self) -> None:
+        """Save, then close everything; safe twice."""
+        try:
+            with self.store.transaction():
+                self.store.set("tracker", self.tracker.snapshot())
+                self.store.set("reported", self.policy.snapshot())
+                self.store.set("report_seq", self._report_seq)
+        except Exception:
+            log.exception("saving the victim registry at shutdown failed")
+        self.camera.close()
+        if self.hq is not None:
+            self.hq.close()
+        self.vehicle.close()
+        self.tlog.close()
+        self.store.close()
+
+
+def state_path(config: Config) -> Path:
+    return config.paths.state_dir / "companion.sqlite"
