@@ -188,10 +188,14 @@ class ReportingConfig:
     dialect_report: bool = True  # RESCUE_VICTIM_REPORT for rescue-hq
     status_period_s: float = 1.0  # RESCUE_STATUS and our HEARTBEAT period
     move_threshold_sigma: float = 1.0  # re-report after moving this many sigmas
+    move_min_m: float = 0.3  # ... and at least this far
+    update_min_interval_s: float = 5.0  # quiet updates of one victim at most this often
 
     def __post_init__(self) -> None:
         _positive(self, "status_period_s")
         _positive(self, "move_threshold_sigma")
+        if not (self.move_min_m >= 0 and self.update_min_interval_s >= 0):
+            raise ValueError("move_min_m and update_min_interval_s must be >= 0")
 
 
 @dataclass(frozen=True)

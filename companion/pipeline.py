@@ -92,7 +92,7 @@ class Pipeline:
             frame.t_unix_s,
             lambda n, e: in_view(self.camera, pose, n, e, self._geo),
         )
-        decisions = self.policy.decide(events, self.tracker.victims())
+        decisions = self.policy.decide(events, self.tracker.victims(), frame.t_unix_s)
         self.counters.detections += len(detections)
         self.counters.observations += len(observations)
         return FrameOutcome(

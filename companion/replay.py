@@ -137,7 +137,11 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
         camera_model(config.camera),
         make_detector(config.detector),
         tracker,
-        ReportPolicy(config.reporting.move_threshold_sigma),
+        ReportPolicy(
+            config.reporting.move_threshold_sigma,
+            config.reporting.move_min_m,
+            config.reporting.update_min_interval_s,
+        ),
     )
     first_reported: dict[int, float] = {}
     total = len(source)

@@ -3,8 +3,10 @@
 A victim is reported
 - when it is confirmed (NEW; announced to people: STATUSTEXT and a map marker);
 - again when its urgency class changes (announced);
-- when it has moved by more than ``move_threshold_sigma`` of its uncertainty since
-  the last report (quiet: the full report and the map marker, no STATUSTEXT);
+- when it has moved by more than ``move_threshold_sigma`` of its uncertainty and by
+  at least ``move_min_m`` since the last report, and that report is at least
+  ``update_min_interval_s`` old (quiet: the full report and the map marker, no
+  STATUSTEXT; a sharpening fix moves a little at every frame, which is no news);
 - when its state changes (merged, not seen recently, seen again, operator marks);
 - on request from the HQ (RESEND);
 never once per frame. What was last reported per victim is part of the saved state,
@@ -13,6 +15,7 @@ so a restart re-announces nothing.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +38,7 @@ class Reported:
     urgency: Urgency
     north_m: float
     east_m: float
+    t_unix_s: float  # when it was reported
 
 
 @dataclass(frozen=True)
@@ -49,11 +53,20 @@ class Decision:
 class ReportPolicy:
     """Decides reports from tracker events and the current victims."""
 
-    def __init__(self, move_threshold_sigma: float) -> None:
+    def __init__(
+        self,
+        move_threshold_sigma: float,
+        move_min_m: float = 0.0,
+        update_min_interval_s: float = 0.0,
+    ) -> None:
         self.move_threshold_sigma = move_threshold_sigma
+        self.move_min_m = move_min_m
+        self.update_min_interval_s = update_min_interval_s
         self.reported: dict[int, Reported] = {}
 
-    def decide(self, events: Sequence[TrackEvent], victims: Iterable[Victim]) -> list[Decision]:
+    def decide(
+        self, events: Sequence[TrackEvent], victims: Iterable[Victim], now_unix_s: float
+    ) -> list[Decision]:
         """The reports owed after one tracker update; records them as reported."""
         decisions: dict[int, Decision] = {}
         for event in events:
@@ -66,16 +79,23 @@ class ReportPolicy:
             last = self.reported.get(victim.victim_id)
             if victim.victim_id in decisions or last is None:
                 continue
-            if victim.state in (
-                TrackState.CONFIRMED,
-                TrackState.NOT_SEEN_RECENTLY,
-            ) and moved_beyond(victim, last.north_m, last.east_m, self.move_threshold_sigma):
+            if self._moved(victim, last, now_unix_s):
                 decisions[victim.victim_id] = Decision(victim, FLAG_MOVED, announce=False)
         for d in decisions.values():
-            self._record(d.victim)
+            self._record(d.victim, now_unix_s)
         return list(decisions.values())
 
-    def requested(self, victims: Iterable[Victim]) -> list[Decision]:
+    def _moved(self, victim: Victim, last: Reported, now_unix_s: float) -> bool:
+        if victim.state not in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY):
+            return False
+        if now_unix_s - last.t_unix_s < self.update_min_interval_s:
+            return False
+        distance_m = math.hypot(victim.north_m - last.north_m, victim.east_m - last.east_m)
+        return distance_m >= self.move_min_m and moved_beyond(
+            victim, last.north_m, last.east_m, self.move_threshold_sigma
+        )
+
+    def requested(self, victims: Iterable[Victim], now_unix_s: float) -> list[Decision]:
         """Reports the HQ asked for (RESEND): every victim already reported."""
         out = [
             Decision(v, FLAG_REQUESTED, announce=False)
@@ -83,7 +103,7 @@ class ReportPolicy:
             if v.victim_id in self.reported
         ]
         for d in out:
-            self._record(d.victim)
+            self._record(d.victim, now_unix_s)
         return out
 
     def _for_event(self, event: TrackEvent) -> Decision | None:
@@ -105,19 +125,17 @@ class ReportPolicy:
             return Decision(v, 0, announce=True) if last is not None else None
         if event.kind is EventKind.OPERATOR:
             return Decision(v, 0, announce=True)
-        if event.kind is EventKind.MOVED:
-            return Decision(v, FLAG_MOVED, announce=False)
         # NOT_SEEN_RECENTLY, SEEN_AGAIN: the state changed; the HQ should know.
         return Decision(v, 0, announce=False)
 
-    def _record(self, v: Victim) -> None:
-        self.reported[v.victim_id] = Reported(v.state, v.urgency, v.north_m, v.east_m)
+    def _record(self, v: Victim, now_unix_s: float) -> None:
+        self.reported[v.victim_id] = Reported(v.state, v.urgency, v.north_m, v.east_m, now_unix_s)
 
     # -- persistence ---------------------------------------------------------------
 
     def snapshot(self) -> dict[str, Any]:
         return {
-            str(vid): [r.state.name, r.urgency.name, r.north_m, r.east_m]
+            str(vid): [r.state.name, r.urgency.name, r.north_m, r.east_m, r.t_unix_s]
             for vid, r in self.reported.items()
         }
 
@@ -128,9 +146,13 @@ class ReportPolicy:
         reported: dict[int, Reported] = {}
         for key, value in snapshot.items():
             try:
-                state, urgency, north_m, east_m = value
+                state, urgency, north_m, east_m, t_unix_s = value
                 reported[int(key)] = Reported(
-                    TrackState[state], Urgency[urgency], float(north_m), float(east_m)
+                    TrackState[state],
+                    Urgency[urgency],
+                    float(north_m),
+                    float(east_m),
+                    float(t_unix_s),
                 )
             except (KeyError, TypeError, ValueError):
                 raise ValueError(f"reported-state entry {key!r} = {value!r} is malformed") from None

@@ -179,7 +179,8 @@ class Service:
     # -- state -------------------------------------------------------------------------
 
     def _restore(self) -> tuple[VictimTracker, ReportPolicy, int]:
-        policy = ReportPolicy(self.config.reporting.move_threshold_sigma)
+        rep = self.config.reporting
+        policy = ReportPolicy(rep.move_threshold_sigma, rep.move_min_m, rep.update_min_interval_s)
         snapshot = self.store.get("tracker")
         tracker = (
             VictimTracker.restore(self.config.tracker, snapshot)
@@ -403,7 +404,7 @@ class Service:
         now = time.time()
         if msg.action == m.RESCUE_OPERATOR_ACTION_RESEND:
             wanted = [v for v in self.tracker.victims() if msg.victim_id in (0, v.victim_id)]
-            return self.policy.requested(wanted)
+            return self.policy.requested(wanted, now)
         states = {
             m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
             m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
@@ -418,7 +419,7 @@ class Service:
             log.warning("operator action %d: %s", msg.action_seq, exc)
             return None
         log.info("operator marked victim %d %s", msg.victim_id, state.name)
-        return self.policy.decide([event], self.tracker.victims())
+        return self.policy.decide([event], self.tracker.victims(), now)
 
     def _reporter_loop(self) -> None:
         period = self.config.reporting.status_period_s
