@@ -1,0 +1,224 @@
+"""The real ``rescue-companion run`` process against the simulated rover on loopback.
+
+The rover routes like ArduPilot: our dialect messages reach the ground peer only
+inside TUNNEL, STATUSTEXT and HEARTBEAT as they are. Every test starts a fresh rover,
+camera server and state directory.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import GroundPeer, NotifySocket
+
+from scenarios.live import LiveSim
+from scenarios.world import preset
+
+pytestmark = pytest.mark.slow
+
+COMPANION_COMPONENT = 191
+FLAG_NEW = 2
+
+
+@pytest.fixture
+def sim() -> Iterator[LiveSim]:
+    with LiveSim(preset("light"), patrol_first_victim=True, speed_m_s=0.25) as live:
+        yield live
+
+
+@pytest.fixture
+def ground(sim: LiveSim) -> Iterator[GroundPeer]:
+    peer = GroundPeer(sim.ground_url)
+    yield peer
+    peer.close()
+
+
+def _config(tmp_path: Path, sim: LiveSim) -> Path:
+    cfg = tmp_path / "companion.toml"
+    cfg.write_text(
+        f"""
+[vehicle]
+url = "{sim.vehicle_url}"
+heartbeat_timeout_s = 3.0
+[hq]
+url = ""
+tunnel = true
+resend_initial_s = 0.5
+resend_max_s = 2.0
+[camera]
+source = "{sim.camera_source}"
+reopen_max_backoff_s = 0.5
+[paths]
+state_dir = "{tmp_path / "state"}"
+"""
+    )
+    return cfg
+
+
+def _start(
+    cfg: Path,
+    log_path: Path,
+    *extra: str,
+    notify: NotifySocket | None = None,
+    watchdog_usec: int | None = None,
+) -> subprocess.Popen[bytes]:
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID")
+    }
+    if notify is not None:
+        env["NOTIFY_SOCKET"] = str(notify.path)
+    if watchdog_usec is not None:
+        env["WATCHDOG_USEC"] = str(watchdog_usec)
+    with log_path.open("ab") as log:  # the child keeps its own descriptor
+        return subprocess.Popen(
+            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg), *extra],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()
+
+
+def _heartbeats(ground: GroundPeer, since_s: float) -> list[object]:
+    return [
+        m
+        for m in ground.of_type("HEARTBEAT", since_s)
+        if m.get_srcComponent() == COMPANION_COMPONENT
+    ]
+
+
+def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
+    tmp_path: Path, sim: LiveSim, ground: GroundPeer
+) -> None:
+    ground.acking.set()
+    proc = _start(
+        _config(tmp_path, sim), tmp_path / "companion.log", "--debug-processing-delay-s", "0.7"
+    )
+    try:
+        # Our heartbeat reaches the ground through the rover: onboard controller, vehicle sysid.
+        hb = ground.wait_for(
+            lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == COMPANION_COMPONENT,
+            20.0,
+        )
+        assert hb.type == 18 and hb.get_srcSystem() == 1
+        # A whole victim report arrives (inside TUNNEL) although each frame takes 0.7 s more.
+        report = ground.wait_for(lambda m: m.get_type() == "RESCUE_VICTIM_REPORT", 60.0)
+        assert report.flags & FLAG_NEW and report.robot_sysid == 1
+        # People are told too: a STATUSTEXT naming the victim.
+        ground.wait_for(
+            lambda m: m.get_type() == "STATUSTEXT" and "victim" in str(m.text).lower(), 10.0
+        )
+        # Heartbeats keep their 1 Hz while processing lags, and the drops are reported.
+        window_start = time.monotonic()
+        status = ground.wait_for(
+            lambda m: m.get_type() == "RESCUE_STATUS" and m.drop_pct > 10.0,
+            15.0,
+            since_s=window_start,
+        )
+        time.sleep(4.0)  # a measurement window, not a readiness check
+        beats = _heartbeats(ground, window_start)
+        elapsed = time.monotonic() - window_start
+        assert len(beats) >= int(elapsed) - 1, f"{len(beats)} heartbeats in {elapsed:.1f} s"
+        assert status.fps < 2.0
+    finally:
+        assert _stop(proc) == 0, (tmp_path / "companion.log").read_text()[-3000:]
+
+
+def test_sigterm_stops_within_5_s_and_ready_comes_first(
+    tmp_path: Path, sim: LiveSim, notify_socket: NotifySocket
+) -> None:
+    proc = _start(_config(tmp_path, sim), tmp_path / "companion.log", notify=notify_socket)
+    try:
+        notify_socket.wait_for("READY=1", 30.0)
+    finally:
+        start = time.monotonic()
+        code = _stop(proc)
+        elapsed = time.monotonic() - start
+    assert code == 0, (tmp_path / "companion.log").read_text()[-3000:]
+    assert elapsed < 5.0
+    notify_socket.wait_for("STOPPING=1", 1.0)
+
+
+def test_watchdog_pings_stop_when_processing_stalls(
+    tmp_path: Path, sim: LiveSim, notify_socket: NotifySocket
+) -> None:
+    proc = _start(
+        _config(tmp_path, sim),
+        tmp_path / "companion.log",
+        "--debug-stall-after-s",
+        "6",
+        notify=notify_socket,
+        watchdog_usec=1_000_000,  # pings every 0.5 s
+    )
+    try:
+        ready = notify_socket.wait_for("READY=1", 30.0)
+        notify_socket.wait_for("WATCHDOG=1", 5.0)
+        time.sleep(max(0.0, ready + 10.0 - time.monotonic()))  # past the stall, plus margin
+        pings = notify_socket.times_of("WATCHDOG=1")
+        assert len(pings) >= 4
+        last = pings[-1]
+        # The loop hung: no ping for the last seconds, so systemd would restart us.
+        assert time.monotonic() - last > 2.5, f"last ping {time.monotonic() - last:.1f} s ago"
+    finally:
+        assert _stop(proc) == 0
+
+
+def test_sigkill_and_restart_lose_nothing_and_reannounce_nothing(
+    tmp_path: Path, sim: LiveSim, ground: GroundPeer
+) -> None:
+    cfg = _config(tmp_path, sim)
+    log = tmp_path / "companion.log"
+    proc = _start(cfg, log)
+    try:
+        first = ground.wait_for(lambda m: m.get_type() == "RESCUE_VICTIM_REPORT", 60.0)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    # Nothing was acknowledged: every report sent so far must come again after restart.
+    unacked = {m.report_seq for m in ground.of_type("RESCUE_VICTIM_REPORT")}
+    known_victims = {m.victim_id for m in ground.of_type("RESCUE_VICTIM_REPORT")}
+    restart_s = time.monotonic()
+    ground.acking.set()
+    proc = _start(cfg, log)
+    try:
+
+        def resent() -> set[int]:
+            return {m.report_seq for m in ground.of_type("RESCUE_VICTIM_REPORT", restart_s)}
+
+        ground.wait_until(lambda: unacked <= resent(), 30.0)  # resends come with backoff
+        again = resent()
+        assert unacked <= again, f"lost after SIGKILL: {sorted(unacked - again)}"
+        # Keep watching the victim for a while: it keeps its ID and is not new again.
+        time.sleep(8.0)
+        after = ground.of_type("RESCUE_VICTIM_REPORT", restart_s)
+        # (Resends of unacknowledged reports keep their seq and flags: not new news.)
+        renewed = [
+            m.victim_id
+            for m in after
+            if m.flags & FLAG_NEW and m.victim_id in known_victims and m.report_seq not in unacked
+        ]
+        assert not renewed, f"re-announced as new after restart: {renewed}"
+        assert first.victim_id in {m.victim_id for m in after}
+        # The restarted process continues the sequence rather than reusing numbers.
+        fresh = [m.report_seq for m in after if m.report_seq not in unacked]
+        assert all(seq > max(unacked) for seq in fresh)
+    finally:
+        assert _stop(proc) == 0, log.read_text()[-3000:]
