@@ -5,6 +5,7 @@
     rescue-sim score  --truth DIR/ground_truth.json --victims REPORT.json [--json]
     rescue-sim sheet  (--preset P | --seed S | --world W) --out sheet.png
     rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
+    rescue-sim demo   [--preset P | --seed S | --world W] [--out DIR] [--duration-s T]
                       [--camera-port PORT] [--time-scale X]
 
 Exit status: 0 success, 1 runtime failure, 2 bad input or usage.
@@ -43,6 +44,8 @@ def _world(args: argparse.Namespace) -> World:
 
     if args.preset:
         return preset(args.preset)
+    if args.seed is None and args.world is None:  # demo's default: the mixed scenario
+        return preset("mixed")
     if args.seed is not None:
         return generate_world(args.seed)
     return load_world(args.world)
@@ -83,6 +86,13 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--camera-host", default="127.0.0.1")
     v.add_argument("--time-scale", type=float, default=1.0)
     v.add_argument("--speed-m-s", type=float, default=0.4)
+    d = sub.add_parser(
+        "demo", help="the whole product live on loopback: rover, camera, companion, rescue-hq"
+    )
+    _world_args(d, required=False)
+    d.add_argument("--out", type=Path, default=Path("demo-out"), help="logs, map, exports")
+    d.add_argument("--duration-s", type=float, help="default: the whole route")
+    d.add_argument("--speed-m-s", type=float, default=0.6)
     return parser
 
 
@@ -162,6 +172,21 @@ def _cmd_rover(args: argparse.Namespace, world: World) -> int:
     return EXIT_OK
 
 
+def _cmd_demo(args: argparse.Namespace, world: World) -> int:
+    from scenarios.demo import print_summary, run_demo
+
+    result = run_demo(world, args.out, args.duration_s, args.speed_m_s)
+    print_summary(result)
+    if result.companion_exit != 0 or result.hq_exit != 0:
+        print(
+            f"rescue-sim: demo: rescue-companion exited {result.companion_exit}, "
+            f"rescue-hq {result.hq_exit} (see the logs)",
+            file=sys.stderr,
+        )
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(
@@ -180,6 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "record": _cmd_record,
             "sheet": _cmd_sheet,
             "rover": _cmd_rover,
+            "demo": _cmd_demo,
         }[args.command]
         return handler(args, world)
     except (WorldError, ScoreInputError) as exc:
