@@ -24,9 +24,13 @@ _MIN_SPAN_M = 4.0
 
 
 def draw_mission_map(
-    path: Path, route_ne_m: Sequence[tuple[float, float]], victims: Sequence[Victim]
+    path: Path,
+    route_ne_m: Sequence[tuple[float, float]],
+    victims: Sequence[Victim],
+    truth_ne_m: Sequence[tuple[float, float]] = (),
 ) -> None:
-    points = list(route_ne_m) + [(v.north_m, v.east_m) for v in victims]
+    """Route, victims and, for simulated missions, the true victims (black crosses)."""
+    points = list(route_ne_m) + [(v.north_m, v.east_m) for v in victims] + list(truth_ne_m)
     if points:
         n = np.array([p[0] for p in points])
         e = np.array([p[1] for p in points])
@@ -80,6 +84,8 @@ def draw_mission_map(
             1,
             cv2.LINE_AA,
         )
+    for n, e in truth_ne_m:
+        cv2.drawMarker(img, px(n, e), (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA)
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
     cv2.putText(img, "1 m", (20, img.shape[0] - 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)

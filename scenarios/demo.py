@@ -154,7 +154,7 @@ def _summarise(
         if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
     ]
     map_png = out_dir / "mission_map.png"
-    draw_mission_map(map_png, route, victims)
+    draw_mission_map(map_png, route, victims, [(v.north_m, v.east_m) for v in world.victims])
     reported = [
         ReportedVictim(v.victim_id, v.urgency, v.north_m, v.east_m, v.first_seen_unix_s)
         for v in victims

@@ -16,8 +16,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import GroundPeer, NotifySocket
+from conftest import NotifySocket
 
+from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.world import preset
 
