@@ -73,6 +73,11 @@ class GroundPeer:
                     self.messages.append((time.monotonic(), msg))
                     self._cond.notify_all()
 
+    def received(self) -> list[tuple[float, Any]]:
+        """Everything received so far: (arrival on time.monotonic(), message)."""
+        with self._cond:
+            return list(self.messages)
+
     def of_type(self, name: str, since_s: float = 0.0) -> list[Any]:
         with self._cond:  # re-entrant use from wait_until's condition is fine: RLock
             return [m for t, m in self.messages if m.get_type() == name and t >= since_s]

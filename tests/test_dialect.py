@@ -76,8 +76,8 @@ def test_invalid_xml_is_rejected_with_mavgens_reason(tmp_path: Path) -> None:
 
 def test_cache_regenerates_a_corrupt_module(tmp_path: Path) -> None:
     first = dialect.load(tmp_path)
-    (generated,) = tmp_path.glob("rescue_dialect_*.py")
-    generated.write_text("this is not python(")
+    (compiled,) = tmp_path.glob("rescue_dialect_*.pyc")
+    compiled.write_bytes(b"this is not bytecode")
     dialect.load.cache_clear()
     try:
         again = dialect.load(tmp_path)
