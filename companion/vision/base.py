@@ -13,6 +13,8 @@ touches the floor), ``visible_area_px`` the mask's pixels at the frame's resolut
 how many metres of floor a pixel spans, and how many pixels a whole lying adult
 would cover, at a pixel. Both are None where the pixel does not see the floor
 within range (above the horizon, too near, too far): nothing can be a victim there.
+``floor_ne_m`` maps many pixels at once to floor points (north, east in metres;
+NaN off the usable floor), so shapes, sizes and gaps can be measured on the floor.
 """
 
 from __future__ import annotations
@@ -38,6 +40,8 @@ DEFAULT_SILHOUETTE_FILL = 0.75
 
 _CACHE_CELL_PX = 8  # FrameGeometry answers are cached per 8x8-pixel cell
 
+FloorMap = Callable[[np.ndarray], np.ndarray]  # pixels (N, 2) -> floor (N, 2), NaN off it
+
 
 class VisionError(Exception):
     """The vision step cannot run as configured; the message says why."""
@@ -62,9 +66,11 @@ class FrameGeometry:
         self,
         metres_per_px: Callable[[float, float], float | None],
         expected_body_area_px: Callable[[float, float], float | None],
+        floor_ne_m: FloorMap | None = None,
     ) -> None:
         self._mpp = metres_per_px
         self._area = expected_body_area_px
+        self._floor = floor_ne_m
         self._cache: dict[tuple[str, int, int], float | None] = {}
 
     def _cached(
@@ -86,6 +92,20 @@ class FrameGeometry:
         """Pixels a whole lying adult centred at (u, v) would cover; None off the floor."""
         return self._cached("area", self._area, u_px, v_px)
 
+    def floor_ne_m(self, pixels: np.ndarray) -> np.ndarray:
+        """Floor points (N, 2) of pixels (N, 2) in metres; rows off the usable floor
+        are NaN. Without a floor map: each pixel's own scale, placed locally (a
+        geometry built from callables alone has no global floor frame)."""
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        if self._floor is not None:
+            return np.asarray(self._floor(px), dtype=np.float64).reshape(-1, 2)
+        out = np.full(px.shape, np.nan)
+        for i, (u, v) in enumerate(px):
+            mpp = self.metres_per_px(float(u), float(v))
+            if mpp is not None:
+                out[i] = (v * mpp, u * mpp)
+        return out
+
     @classmethod
     def constant(
         cls,
@@ -102,7 +122,12 @@ class FrameGeometry:
         def area(_u: float, v: float) -> float | None:
             return area_px if v >= floor_from_v_px else None
 
-        return cls(mpp, area)
+        def floor(px: np.ndarray) -> np.ndarray:
+            out = np.column_stack([px[:, 1], px[:, 0]]) * metres_per_px
+            out[px[:, 1] < floor_from_v_px] = np.nan
+            return out
+
+        return cls(mpp, area, floor)
 
     @classmethod
     def from_pose(
@@ -135,4 +160,30 @@ class FrameGeometry:
                 return None
             return float(rect_px) * silhouette_fill if rect_px > 0.0 else None
 
-        return cls(mpp, area)
+        return cls(mpp, area, _floor_map(camera, pose, params))
+
+
+def _floor_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> FloorMap:
+    """fusion.geolocate's ray-floor intersection for many pixels at once (no covariance):
+    NaN where the ray misses the floor or lands outside [min_range_m, max_range_m]."""
+    from fusion.camera import rotation_zyx
+
+    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
+    centre, r_ned_cam = camera.camera_pose_ned(vehicle, r_ned_body)
+    floor_down = pose.down_m + params.floor_down_m
+    above = floor_down - centre[2]
+
+    def floor(px: np.ndarray) -> np.ndarray:
+        if len(px) == 0:
+            return np.zeros((0, 2))
+        dirs = camera.rays_camera(px) @ r_ned_cam.T
+        down = dirs[:, 2]
+        ok = (down > 1e-9) & (above > 0.0)
+        t = np.where(ok, above / np.where(ok, down, 1.0), np.nan)
+        ok &= (t >= params.min_range_m) & (t <= params.max_range_m)
+        ne = centre[:2] + t[:, None] * dirs[:, :2]
+        ne[~ok] = np.nan
+        return ne
+
+    return floor

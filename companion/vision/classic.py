@@ -1,29 +1,28 @@
-"""The ``classic`` backend: skin and clothing colour, shape tests and a metric size prior.
+"""The ``classic`` backend: skin and clothing cues, shape tests and a metric size prior.
 
-Per frame, at a reduced working resolution (``work_width_px``, default 320;
-``work_height_px`` can keep more rows for grazing views):
+Per frame:
 
-1. Optional dark-scene enhancement (enhance.py).
-2. Colour cues in rg chromaticity (cues.py): a skin mask and a clothing mask.
-3. Skin seeds: each skin region must lie on the floor within range (FrameGeometry),
-   have the floor size of a body part (a hand's ~0.01 m^2 to a bare torso's ~0.3 m^2)
-   and thickness (a palm, not a text stroke), and not look man-made (rectangular,
-   straight-edged convex, or flat few-cornered).
-   Every detection starts from at least one skin seed: coloured debris alone never
-   makes a victim.
-4. Clothing regions that look man-made are dropped; the rest join the seeds they
-   touch (one body = skin + clothes), unless the joined region is larger than a
-   body, in which case the clothing leaked into the background and only the skin
-   is kept.
-5. Regions closer than ``merge_gap_m`` on the floor merge into one victim (a head
-   and two hands with dark clothes in between), so one person gives one detection.
+1. A working grid (grid.py): columns reduced to ``work_width_px``, rows sampled by
+   the floor they span (full resolution where the floor is far and rows are
+   precious, merged near the camera), rows above the usable floor dropped.
+2. Optional dark-scene enhancement (enhance.py) of the working image.
+3. Colour cues (cues.py): skin, and clothing (saturated, or much darker or brighter
+   than the local floor).
+4. Skin seeds: skin regions on the floor within range, with a body part's floor area
+   (a hand's ~0.01 m^2 to a bare torso's 0.3 m^2), extent and thickness, not in a row
+   of glyphs (overlay text) and not man-made (rectangle, plank, straight-edged
+   polygon), judged on the floor (FrameGeometry.floor_ne_m). Every victim starts
+   from a skin seed: coloured debris alone never makes a victim.
+5. Body parts: clothing regions on the floor, no larger than ``part_area_max_m2``
+   and not man-made.
+6. One body, one detection: parts within ``part_gap_m`` of a seed's cluster join it;
+   then clusters whose gap on the floor is at most ``seed_gap_m`` merge (a head and
+   a hand with grey clothes in between). Every join must keep the cluster a body:
+   at most ``body_extent_max_m`` across and ``body_area_max_m2`` on the floor.
 
-The visible area is the pixel count of skin and clothing of that victim, scaled back
-to the frame's resolution; its centroid is the floor-contact pixel.
-
-Without a FrameGeometry (photos, tools) the metric tests become pixel tests:
-seeds between ``min_skin_px`` and ``max_region_share`` of the frame, merged within
-``merge_gap_rel`` times the larger seed's size.
+The visible area is the frame pixels of the cluster's union mask; its centroid is
+the floor-contact pixel. Without a FrameGeometry (photos) the frame is taken to
+span ``photo_width_m`` of floor at one scale, so the same metric tests apply.
 """
 
 from __future__ import annotations
@@ -36,63 +35,77 @@ import numpy as np
 
 from companion.vision.base import FrameGeometry
 from companion.vision.cues import (
+    MIN_OUTLINE_PX,
     ColourParams,
+    FloorShape,
     Masks,
-    Shape,
     colour_masks,
     equivalent_size_m,
-    looks_man_made,
-    shape_of,
+    floor_looks_man_made,
+    floor_shape,
     skin_pixels,
     text_like_labels,
 )
 from companion.vision.enhance import Enhancer
+from companion.vision.grid import GridParams, WorkGrid, floor_grid, uniform_grid
 from fusion.types import Detection
 
-_MIN_REGION_WORK_PX = 6  # smaller regions at working resolution are noise
+_MIN_REGION_WORK_PX = 4  # smaller regions at working resolution are noise
+_MAX_OUTLINE_POINTS = 64  # outlines are subsampled to this many floor points
 
 
 @dataclass(frozen=True)
 class ClassicParams:
     work_width_px: int = 320
-    # None: the same reduction as the width. A number (e.g. the frame's height) keeps
-    # more rows: a rover's camera sees bodies at a grazing angle, a few rows tall;
-    # on the scenario suite full height raised medium recall 0.67 -> 0.78 for 2x cost.
-    work_height_px: int | None = None
+    row_step_m: float = 0.012  # floor a working row spans near the camera (grid.py)
+    max_row_step: int = 4
     colour: ColourParams = field(default_factory=ColourParams)
     skin_area_m2: tuple[float, float] = (0.004, 0.30)  # fingertips+ .. bare torso
-    skin_extent_m: tuple[float, float] = (0.06, 1.0)  # longest side of a skin part
+    skin_extent_m: tuple[float, float] = (0.06, 0.7)  # longest side: a hand .. a bare arm
+    max_row_m: float = 0.1  # a seed where one working row spans more floor is too far
     skin_half_width_m: float = 0.012  # thickest point: a palm is ~0.08 m wide; text strokes
-    min_half_width_px: float = 3.0  # without geometry: the same in frame pixels
     min_skin_solidity: float = 0.6  # hands, faces, cut limbs are compact; glyphs are not
+    part_area_max_m2: float = 0.8  # a clothing region larger than this is not one garment
     body_area_max_m2: float = 1.0  # a whole lying adult is ~0.6 m^2
-    body_extent_max_m: float = 2.4
-    merge_gap_m: float = 0.5  # parts of one body are closer than this on the floor
-    min_skin_px: float = 60.0  # without geometry: smallest skin seed (frame pixels)
-    max_region_share: float = 0.3  # without geometry: largest region share of the frame
-    merge_gap_rel: float = 2.0  # without geometry: gap, times the larger seed's size
+    body_extent_max_m: float = 2.2  # ... and at most ~2 m long
+    part_gap_m: float = 0.12  # clothing this close to a body's parts belongs to it
+    seed_gap_m: float = 1.0  # parts of one body are closer than this on the floor
+    photo_width_m: float = 4.0  # without geometry: floor the frame is taken to span
+    # A body cut by the left, right or bottom frame edge has an unknown visible share
+    # (and a centroid pulled to the edge): drop it and wait for a whole view.
+    drop_cut_bodies: bool = True
 
 
 @dataclass
-class _Region:
-    label: int
+class _Node:
+    """A skin seed or a clothing part (or a cluster of them)."""
+
+    labels: list[tuple[int, int]]  # (mask kind 0 skin / 1 cloth, label)
+    frame_px: float
+    su: float  # sums of frame u and v, weighted by frame pixels
+    sv: float
+    floor: np.ndarray  # outline points on the floor (M, 2)
+    area_m2: float
+    seeds: int
     x0: int
     y0: int
-    x1: int  # exclusive
+    x1: int
     y1: int
-    pixels: int
-    cx: float
-    cy: float
 
-
-def _regions(mask: np.ndarray) -> tuple[np.ndarray, list[_Region]]:
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    out = []
-    for i in range(1, n):
-        x, y, w, h, a = (int(v) for v in stats[i])
-        if a >= _MIN_REGION_WORK_PX:
-            out.append(_Region(i, x, y, x + w, y + h, a, float(cents[i][0]), float(cents[i][1])))
-    return labels, out
+    def join(self, other: _Node) -> _Node:
+        return _Node(
+            self.labels + other.labels,
+            self.frame_px + other.frame_px,
+            self.su + other.su,
+            self.sv + other.sv,
+            np.vstack([self.floor, other.floor]),
+            self.area_m2 + other.area_m2,
+            self.seeds + other.seeds,
+            min(self.x0, other.x0),
+            min(self.y0, other.y0),
+            max(self.x1, other.x1),
+            max(self.y1, other.y1),
+        )
 
 
 class ClassicDetector:
@@ -109,29 +122,39 @@ class ClassicDetector:
         self.min_score = min_score
         self.rejected: dict[str, int] = {}  # reason -> count, for diagnostics
 
-    # -- public ------------------------------------------------------------------
+    def grid_for(self, frame_w: int, frame_h: int, geometry: FrameGeometry | None) -> WorkGrid:
+        p = self.params
+        if geometry is None:
+            return uniform_grid(frame_w, frame_h, p.work_width_px)
+        return floor_grid(
+            frame_w, frame_h, geometry, GridParams(p.work_width_px, p.row_step_m, p.max_row_step)
+        )
 
     def detect(
         self, image_bgr: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
     ) -> list[Detection]:
         h, w = image_bgr.shape[:2]
-        work_w = min(w, self.params.work_width_px)
-        work_h = self.params.work_height_px or round(h * work_w / w)
-        size = (work_w, min(h, work_h))
-        small = image_bgr
-        if size != (w, h):
-            small = cv2.resize(image_bgr, size, interpolation=cv2.INTER_AREA)
-        scale = (w / size[0], h / size[1])
+        grid = self.grid_for(w, h, geometry)
+        if geometry is None:
+            geometry = FrameGeometry.constant(self.params.photo_width_m / w)
+        small = grid.sample(image_bgr)
+        raw_luma = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
         if self.enhancer is not None:
             small = self.enhancer(small)
-        masks = colour_masks(small, self.params.colour)
-        ctx = _Frame(self, geometry, scale, (w, h), masks, image_bgr)
-        seeds_mask, seeds = ctx.skin_seeds(masks.skin)
+            if self.enhancer.last is not None and self.enhancer.last.denoised:
+                raw_luma = cv2.GaussianBlur(cv2.medianBlur(raw_luma, 3), (3, 3), 0)
+        masks = colour_masks(small, self.params.colour, grid.far_rows, raw_luma)
+        ctx = _Frame(self, geometry, grid, masks, image_bgr)
+        seeds = ctx.skin_seeds()
         if not seeds:
             return []
-        cloth = ctx.clean_cloth(masks.cloth)
-        groups = ctx.groups(seeds_mask, cloth, seeds)
-        victims = ctx.cluster(groups)
+        parts = ctx.clothing_parts()
+        victims = ctx.bodies(seeds, parts)
+        if self.params.drop_cut_bodies:
+            kept = [v for v in victims if not ctx.cut_by_frame(v)]
+            if len(kept) < len(victims):
+                self._reject("body cut by the frame edge")
+            victims = kept
         dets = [ctx.detection(v, t_mono_s) for v in victims]
         return [d for d in dets if d.score >= self.min_score]
 
@@ -139,295 +162,321 @@ class ClassicDetector:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
 
-@dataclass
-class _Group:
-    pixels: int  # skin + clothing pixels (working resolution)
-    skin_pixels: int
-    sx: float  # sums of x and y over the pixels
-    sy: float
-    x0: int
-    y0: int
-    x1: int
-    y1: int
-    seeds: int
-
-
 class _Frame:
-    """The per-frame working state of ClassicDetector (kept out of the detector)."""
+    """The per-frame working state of ClassicDetector."""
 
     def __init__(
         self,
         det: ClassicDetector,
-        geometry: FrameGeometry | None,
-        scale: tuple[float, float],
-        frame_size: tuple[int, int],
+        geometry: FrameGeometry,
+        grid: WorkGrid,
         masks: Masks,
         image_bgr: np.ndarray,
     ) -> None:
         self.det = det
+        self.image = image_bgr
         self.p = det.params
         self.geometry = geometry
-        self.sx, self.sy = scale
-        self.px_area = self.sx * self.sy  # frame pixels per working pixel
-        self.frame_w, self.frame_h = frame_size
-        self.luma = masks.luma
+        self.grid = grid
         self.masks = masks
-        self.image = image_bgr
-        self.text: set[int] = set()
+        self.luma = masks.luma
+        self.w_row = grid.px_area_row  # frame pixels per working pixel, per row
+        self.u_col, _ = grid.frame_uv(np.arange(grid.work_w), np.zeros(grid.work_w))
+        self.area_row, self.row_m = self._floor_per_row()
 
-    def full(self, x: float, y: float) -> tuple[float, float]:
-        """Working-resolution pixel centre -> frame pixel."""
-        return (x + 0.5) * self.sx - 0.5, (y + 0.5) * self.sy - 0.5
+    # -- per-frame tables ------------------------------------------------------------
 
-    def mpp(self, x: float, y: float) -> float | None:
-        if self.geometry is None:
+    def _floor_per_row(self) -> tuple[np.ndarray, np.ndarray]:
+        """Floor m^2 of one working pixel and floor metres one working row spans, per
+        working row (at the centre column; NaN where the row is off the floor)."""
+        g = self.grid
+        ys = np.arange(g.work_h, dtype=np.float64)
+        u = np.full(len(ys), (g.frame_w - 1) / 2.0)
+        _, v = g.frame_uv(np.zeros(len(ys)), ys)
+        half_u, half_v = g.sx / 2.0, g.row_k / 2.0
+        pts = np.column_stack([u, v])
+        du = self.geometry.floor_ne_m(pts + np.column_stack([half_u + 0 * u, 0 * v]))
+        du -= self.geometry.floor_ne_m(pts - np.column_stack([half_u + 0 * u, 0 * v]))
+        dv = self.geometry.floor_ne_m(pts + np.column_stack([0 * u, half_v]))
+        dv -= self.geometry.floor_ne_m(pts - np.column_stack([0 * u, half_v]))
+        area: np.ndarray = np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0])
+        return area, np.linalg.norm(dv, axis=1)
+
+    # -- regions ---------------------------------------------------------------------
+
+    def _components(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        rows = np.broadcast_to(np.arange(labels.shape[0])[:, None], labels.shape)
+        flat = labels.ravel()
+        w = self.w_row[rows].ravel()
+        a = np.nan_to_num(self.area_row, nan=np.inf)[rows].ravel()
+        _, v_row = self.grid.frame_uv(np.zeros(1), np.arange(labels.shape[0]))
+        sums = {
+            "px": np.bincount(flat, weights=w, minlength=n),
+            "u": np.bincount(
+                flat, weights=w * np.broadcast_to(self.u_col, labels.shape).ravel(), minlength=n
+            ),
+            "v": np.bincount(flat, weights=w * v_row[rows].ravel(), minlength=n),
+            "m2": np.bincount(flat, weights=a, minlength=n),
+        }
+        return labels, stats, sums
+
+    def _node(
+        self, kind: int, labels: np.ndarray, stats: np.ndarray, sums: dict[str, np.ndarray], i: int
+    ) -> tuple[_Node, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Component i's node, its outline's floor points, border flags and pixels."""
+        x, y, w, h = (int(v) for v in stats[i][:4])
+        roi = (labels[y : y + h, x : x + w] == i).astype(np.uint8)
+        contours, _ = cv2.findContours(roi, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not contours:
             return None
-        u, v = self.full(x, y)
-        return self.geometry.metres_per_px(u, v)
+        c = max(contours, key=len).reshape(-1, 2)
+        if len(c) > _MAX_OUTLINE_POINTS:
+            c = c[np.linspace(0, len(c) - 1, _MAX_OUTLINE_POINTS).astype(int)]
+        xs, ys = c[:, 0] + x, c[:, 1] + y
+        border = (xs == 0) | (ys == 0) | (xs == self.grid.work_w - 1) | (ys == self.grid.work_h - 1)
+        u, v = self.grid.frame_uv(xs, ys)
+        floor = self.geometry.floor_ne_m(np.column_stack([u, v]))
+        node = _Node(
+            [(kind, i)],
+            float(sums["px"][i]),
+            float(sums["u"][i]),
+            float(sums["v"][i]),
+            floor[np.isfinite(floor).all(axis=1)],
+            float(sums["m2"][i]),
+            1 if kind == 0 else 0,
+            x,
+            y,
+            x + w,
+            y + h,
+        )
+        return node, floor, border, np.column_stack([xs, ys])
 
-    # -- skin seeds ----------------------------------------------------------------
+    def _luma_std(self, labels: np.ndarray, n: _Node, i: int) -> float:
+        sl = np.s_[n.y0 : n.y1, n.x0 : n.x1]
+        return float(self.luma[sl][labels[sl] == i].std())
 
-    def skin_seeds(self, skin: np.ndarray) -> tuple[np.ndarray, list[_Region]]:
-        n, labels, stats, cents = cv2.connectedComponentsWithStats(skin, connectivity=8)
-        self.text = text_like_labels(stats)
-        regions = [
-            _Region(i, x, y, x + w, y + h, a, float(cents[i][0]), float(cents[i][1]))
-            for i in range(1, n)
-            for x, y, w, h, a in [(int(v) for v in stats[i])]
-            if a >= _MIN_REGION_WORK_PX
-        ]
-        keep = np.zeros(labels.max() + 1, np.uint8)
+    # -- skin seeds ------------------------------------------------------------------
+
+    def skin_seeds(self) -> list[_Node]:
+        labels, stats, sums = self._components(self.masks.skin)
+        self.skin_labels = labels
+        text = self._text_like(labels, stats)
         seeds = []
-        for r in regions:
-            if self._seed_ok(labels, r):
-                keep[r.label] = 255
-                seeds.append(r)
-        return keep[labels], seeds
-
-    def _seed_ok(self, labels: np.ndarray, r: _Region) -> bool:
-        frame_px = r.pixels * self.px_area
-        if self.geometry is not None:
-            mpp = self.mpp(r.cx, r.cy)
-            if mpp is None:
+        lo, hi = self.p.skin_area_m2
+        for i in range(1, len(stats)):
+            if stats[i][4] < _MIN_REGION_WORK_PX:
+                continue
+            area = float(sums["m2"][i])
+            if not math.isfinite(area):
                 self.det._reject("skin off the floor")
-                return False
-            lo, hi = self.p.skin_area_m2
-            if not lo <= frame_px * mpp**2 <= hi:
+                continue
+            if not lo <= area <= hi:
                 self.det._reject("skin size")
-                return False
-        elif not (
-            self.p.min_skin_px <= frame_px <= self.p.max_region_share * self.frame_w * self.frame_h
-        ):
-            self.det._reject("skin size")
-            return False
-        if r.label in self.text:
-            self.det._reject("skin in a line of text")
-            return False
-        roi = (labels[r.y0 : r.y1, r.x0 : r.x1] == r.label).astype(np.uint8)
-        shape = self._full_res_shape(r, roi)
-        if shape is None:
-            return False
-        if shape.solidity < self.p.min_skin_solidity:
-            self.det._reject("skin fragmented")
-            return False
-        if self.geometry is not None:
-            mpp = self.mpp(r.cx, r.cy) or 0.0
-            extent_m = shape.long_side_px * mpp
-            lo, hi = self.p.skin_extent_m
-            if not lo <= extent_m <= hi:
-                self.det._reject("skin extent")
-                return False
-        # Thickness: the largest inscribed disc. Overlay text and thin lines have none.
-        padded = cv2.copyMakeBorder(roi, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-        half_width_work = float(cv2.distanceTransform(padded, cv2.DIST_L2, 3).max())
-        half_width_px = half_width_work * min(self.sx, self.sy)
-        if self.geometry is not None:
-            thick_enough = half_width_px * (self.mpp(r.cx, r.cy) or 0.0) >= self.p.skin_half_width_m
-        else:
-            thick_enough = half_width_px >= self.p.min_half_width_px
-        if not thick_enough:
-            self.det._reject("skin too thin")
-            return False
-        luma_std = float(self.luma[r.y0 : r.y1, r.x0 : r.x1][roi > 0].std())
-        if looks_man_made(shape, luma_std):
-            self.det._reject("skin looks man-made")
-            return False
-        return True
+                continue
+            if i in text:
+                self.det._reject("skin in a line of text")
+                continue
+            if not self.row_m[int(stats[i][1] + stats[i][3] // 2)] <= self.p.max_row_m:
+                self.det._reject("skin too far to judge")
+                continue
+            made = self._node(0, labels, stats, sums, i)
+            if made is None:
+                continue
+            node, floor, border, outline = made
+            fine = None
+            if max(node.x1 - node.x0, node.y1 - node.y0) < MIN_OUTLINE_PX:
+                # Few working pixels: trace it in the frame.
+                fine = self._full_res_outline(labels, node, i)
+            if fine is not None:
+                floor, border, outline = fine
+            if self._seed_ok(labels, node, floor_shape(floor, border, outline), i):
+                seeds.append(node)
+        return seeds
 
-    def _full_res_shape(self, r: _Region, roi: np.ndarray) -> Shape | None:
-        """The seed's outline measured on the frame itself (small seeds are few pixels
-        at working resolution, where rectangles and ellipses look alike)."""
-        if self.px_area <= 1.0:
-            return shape_of(roi)
-        sx, sy = self.sx, self.sy
-        x0, y0 = max(0, math.floor(r.x0 * sx) - 2), max(0, math.floor(r.y0 * sy) - 2)
-        x1 = min(self.frame_w, math.ceil(r.x1 * sx) + 2)
-        y1 = min(self.frame_h, math.ceil(r.y1 * sy) + 2)
-        crop = self.image[y0:y1, x0:x1]
+    def _full_res_outline(
+        self, labels: np.ndarray, n: _Node, i: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The seed's outline traced in the frame itself (floor points, border flags,
+        pixels): at working resolution a small hand is a few pixels, where ellipses
+        and rectangles look alike. None when the frame's own pixels do not hold it
+        (a dark zone, where only the enhanced working image shows the colour)."""
+        g = self.grid
+        v0, _ = g.frame_rows(n.y0, n.y1)
+        u0, u1 = math.floor(n.x0 * g.sx), min(g.frame_w, math.ceil(n.x1 * g.sx))
+        roi = (labels[n.y0 : n.y1, n.x0 : n.x1] == i).astype(np.uint8)
+        # The footprint in frame pixels: rows repeated by their step, columns scaled.
+        own = np.repeat(roi, g.row_k[n.y0 : n.y1].astype(int), axis=0)
+        own = cv2.resize(own, (u1 - u0, own.shape[0]), interpolation=cv2.INTER_NEAREST)
+        own = cv2.dilate(own, np.ones((3, 3), np.uint8))
+        crop = self.image[v0 : v0 + own.shape[0], u0:u1]
         enh = self.det.enhancer
         if enh is not None and enh.last is not None and enh.last.denoised:
             crop = cv2.GaussianBlur(cv2.medianBlur(crop, 3), (3, 3), 0)  # as enhance does
         skin, *_ = skin_pixels(crop, self.p.colour, self.masks.background)
-        # Only the part that belongs to this seed (a scaled-up copy of its region).
-        own: np.ndarray = cv2.resize(roi, (round((r.x1 - r.x0) * sx), round((r.y1 - r.y0) * sy)))
-        own_full: np.ndarray = np.zeros(skin.shape, np.uint8)
-        ox, oy = math.floor(r.x0 * sx) - x0, math.floor(r.y0 * sy) - y0
-        hh, ww = (
-            min(own.shape[0], own_full.shape[0] - oy),
-            min(own.shape[1], own_full.shape[1] - ox),
-        )
-        own_full[oy : oy + hh, ox : ox + ww] = own[:hh, :ww]
-        own_full = cv2.dilate(own_full, np.ones((3, 3), np.uint8))
-        mask: np.ndarray = (skin & (own_full > 0)).astype(np.uint8)
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        return shape_of(mask)
+        raw: np.ndarray = (skin & (own[: crop.shape[0]] > 0)).astype(np.uint8)
+        opened: np.ndarray = cv2.morphologyEx(raw, cv2.MORPH_OPEN, np.ones((1, 3), np.uint8))
+        mask: np.ndarray = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+        if np.count_nonzero(mask) < 0.5 * n.frame_px:
+            return None
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        c = max(contours, key=cv2.contourArea).reshape(-1, 2)
+        if len(c) > 2 * _MAX_OUTLINE_POINTS:
+            c = c[np.linspace(0, len(c) - 1, 2 * _MAX_OUTLINE_POINTS).astype(int)]
+        u, v = c[:, 0] + u0, c[:, 1] + v0
+        border = (u == 0) | (v == 0) | (u == g.frame_w - 1) | (v == g.frame_h - 1)
+        pixels = np.column_stack([u, v]).astype(np.float64)
+        return self.geometry.floor_ne_m(pixels), border, pixels
 
-    # -- clothing ------------------------------------------------------------------
+    def _seed_ok(self, labels: np.ndarray, node: _Node, shape: FloorShape | None, i: int) -> bool:
+        if shape is None:
+            self.det._reject("skin off the floor")
+            return False
+        lo, hi = self.p.skin_extent_m
+        if not lo <= shape.long_m <= hi:
+            self.det._reject("skin extent")
+            return False
+        if shape.solidity < self.p.min_skin_solidity:
+            self.det._reject("skin fragmented")
+            return False
+        if self._half_width_m(labels, node, i) < self.p.skin_half_width_m:
+            self.det._reject("skin too thin")
+            return False
+        if floor_looks_man_made(shape, self._luma_std(labels, node, i)):
+            self.det._reject("skin looks man-made")
+            return False
+        return True
 
-    def clean_cloth(self, cloth: np.ndarray) -> np.ndarray:
-        labels, regions = _regions(cloth)
-        keep = np.zeros(labels.max() + 1, np.uint8)
-        for r in regions:
-            roi = (labels[r.y0 : r.y1, r.x0 : r.x1] == r.label).astype(np.uint8)
-            shape = shape_of(roi)
-            if shape is None:
-                continue
-            luma_std = float(self.luma[r.y0 : r.y1, r.x0 : r.x1][roi > 0].std())
-            if looks_man_made(shape, luma_std):
-                self.det._reject("cloth looks man-made")
-                continue
-            keep[r.label] = 255
-        cleaned: np.ndarray = keep[labels]
-        return cleaned
-
-    # -- grouping ------------------------------------------------------------------
-
-    def groups(
-        self, seeds_mask: np.ndarray, cloth: np.ndarray, seeds: list[_Region]
-    ) -> list[_Group]:
-        union = cv2.bitwise_or(seeds_mask, cloth)
-        bridged = cv2.morphologyEx(
-            union, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-        )
-        labels, regions = _regions(bridged)
-        by_label = {r.label: r for r in regions}
-        seeds_of: dict[int, list[_Region]] = {}
-        for s in seeds:
-            ys, xs = np.nonzero(seeds_mask[s.y0 : s.y1, s.x0 : s.x1])
-            lab = int(labels[s.y0 + ys[0], s.x0 + xs[0]])
-            seeds_of.setdefault(lab, []).append(s)
-        out = []
-        for lab, members in seeds_of.items():
-            region = by_label.get(lab)
-            group = self._group(labels, union, seeds_mask, lab, region) if region else None
-            if group is None or not self._body_sized(group):
-                # Clothing leaked into the background: keep the skin alone.
-                for s in members:
-                    out.append(self._seed_group(s))
-                continue
-            group.seeds = len(members)
-            out.append(group)
+    def _text_like(self, labels: np.ndarray, stats: np.ndarray) -> set[int]:
+        """Skin components that belong to a line of glyphs. Glyphs of overlay text can
+        fall partly in the skin and partly in the clothing colours (anti-aliasing,
+        JPEG), so the line is looked for among the components of both together."""
+        both = cv2.bitwise_or(self.masks.skin, self.masks.cloth)
+        _, u_labels, u_stats, _ = cv2.connectedComponentsWithStats(both, connectivity=8)
+        lines = text_like_labels(u_stats)
+        if not lines:
+            return set()
+        out = set()
+        for i in range(1, len(stats)):
+            x, y = int(stats[i][0]), int(stats[i][1])
+            ys, xs = np.nonzero(labels[y : y + int(stats[i][3]), x : x + int(stats[i][2])] == i)
+            if len(xs) and int(u_labels[y + ys[0], x + xs[0]]) in lines:
+                out.add(i)
         return out
 
-    def _group(
-        self,
-        labels: np.ndarray,
-        union: np.ndarray,
-        skin: np.ndarray,
-        lab: int,
-        r: _Region,
-    ) -> _Group | None:
-        sl = np.s_[r.y0 : r.y1, r.x0 : r.x1]
-        inside = (labels[sl] == lab) & (union[sl] > 0)
-        ys, xs = np.nonzero(inside)
-        if len(xs) == 0:
-            return None
-        skin_px = int(np.count_nonzero(skin[sl][inside]))
-        return _Group(
-            len(xs),
-            skin_px,
-            float(xs.sum() + r.x0 * len(xs)),
-            float(ys.sum() + r.y0 * len(ys)),
-            r.x0,
-            r.y0,
-            r.x1,
-            r.y1,
-            0,
-        )
+    def _half_width_m(self, labels: np.ndarray, n: _Node, i: int) -> float:
+        """Radius of the largest disc inside the region, in floor metres (the working
+        pixel's smaller floor side at the region's centre)."""
+        roi = (labels[n.y0 : n.y1, n.x0 : n.x1] == i).astype(np.uint8)
+        padded = cv2.copyMakeBorder(roi, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+        half_px = float(cv2.distanceTransform(padded, cv2.DIST_L2, 3).max())
+        u, v = n.su / n.frame_px, n.sv / n.frame_px
+        k = float(self.grid.row_k[min(self.grid.work_h - 1, (n.y0 + n.y1) // 2)])
+        pts = np.array([[u, v], [u + self.grid.sx, v], [u, v + k]])
+        f = self.geometry.floor_ne_m(pts)
+        side = min(float(np.linalg.norm(f[1] - f[0])), float(np.linalg.norm(f[2] - f[0])))
+        return half_px * side if math.isfinite(side) else 0.0
 
-    def _seed_group(self, s: _Region) -> _Group:
-        return _Group(
-            s.pixels, s.pixels, s.cx * s.pixels, s.cy * s.pixels, s.x0, s.y0, s.x1, s.y1, 1
-        )
+    # -- clothing --------------------------------------------------------------------
 
-    def _body_sized(self, g: _Group) -> bool:
-        frame_px = g.pixels * self.px_area
-        if self.geometry is None:
-            return frame_px <= self.p.max_region_share * self.frame_w * self.frame_h
-        mpp = self.mpp(g.sx / g.pixels, g.sy / g.pixels)
-        if mpp is None:
+    def clothing_parts(self) -> list[_Node]:
+        labels, stats, sums = self._components(self.masks.cloth)
+        self.cloth_labels = labels
+        parts = []
+        for i in range(1, len(stats)):
+            if stats[i][4] < _MIN_REGION_WORK_PX:
+                continue
+            area = float(sums["m2"][i])
+            if not math.isfinite(area) or area > self.p.part_area_max_m2:
+                continue
+            made = self._node(1, labels, stats, sums, i)
+            if made is None:
+                continue
+            node, floor, border, outline = made
+            shape = floor_shape(floor, border, outline)
+            if shape is None:
+                continue
+            if floor_looks_man_made(shape, self._luma_std(labels, node, i)):
+                self.det._reject("cloth looks man-made")
+                continue
+            parts.append(node)
+        return parts
+
+    # -- one body, one detection -------------------------------------------------------
+
+    @staticmethod
+    def _gap_m(a: _Node, b: _Node) -> float:
+        if len(a.floor) == 0 or len(b.floor) == 0:
+            return math.inf
+        d = a.floor[:, None, :] - b.floor[None, :, :]
+        return float(np.sqrt((d * d).sum(axis=2).min()))
+
+    def _body_sized(self, n: _Node) -> bool:
+        if n.area_m2 > self.p.body_area_max_m2:
             return False
-        extent_m = max((g.x1 - g.x0) * self.sx, (g.y1 - g.y0) * self.sy) * mpp
-        return frame_px * mpp**2 <= self.p.body_area_max_m2 and extent_m <= self.p.body_extent_max_m
+        pts = n.floor
+        if len(pts) > 2:
+            pts = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
+        d = pts[:, None, :] - pts[None, :, :]
+        extent = float(np.sqrt((d * d).sum(axis=2).max())) if len(pts) else 0.0
+        return extent <= self.p.body_extent_max_m
 
-    # -- one victim, one detection ---------------------------------------------------
-
-    def _gap_ok(self, a: _Group, b: _Group) -> bool:
-        dx = max(0, max(a.x0, b.x0) - min(a.x1, b.x1))
-        dy = max(0, max(a.y0, b.y0) - min(a.y1, b.y1))
-        gap_px = math.hypot(dx * self.sx, dy * self.sy)
-        if self.geometry is not None:
-            mx = (a.sx / a.pixels + b.sx / b.pixels) / 2.0
-            my = (a.sy / a.pixels + b.sy / b.pixels) / 2.0
-            mpp = self.mpp(mx, my)
-            return mpp is not None and gap_px * mpp <= self.p.merge_gap_m
-        size_px = math.sqrt(max(a.pixels, b.pixels) * self.px_area)
-        return gap_px <= self.p.merge_gap_rel * size_px
-
-    def cluster(self, groups: list[_Group]) -> list[_Group]:
-        """Single-linkage merge of groups that are parts of one body."""
-        merged = list(groups)
+    def bodies(self, seeds: list[_Node], parts: list[_Node]) -> list[_Node]:
+        clusters = list(seeds)
+        free = list(parts)
         changed = True
-        while changed and len(merged) > 1:
+        while changed and free:  # clothing joins the body it touches, transitively
             changed = False
-            for i in range(len(merged)):
-                for j in range(i + 1, len(merged)):
-                    a, b = merged[i], merged[j]
-                    if self._gap_ok(a, b):
-                        combined = _Group(
-                            a.pixels + b.pixels,
-                            a.skin_pixels + b.skin_pixels,
-                            a.sx + b.sx,
-                            a.sy + b.sy,
-                            min(a.x0, b.x0),
-                            min(a.y0, b.y0),
-                            max(a.x1, b.x1),
-                            max(a.y1, b.y1),
-                            a.seeds + b.seeds,
-                        )
-                        if self._body_sized(combined):
-                            merged[i] = combined
-                            del merged[j]
-                            changed = True
-                            break
-                if changed:
-                    break
-        return merged
+            for part in list(free):
+                gaps = [self._gap_m(c, part) for c in clusters]
+                j = int(np.argmin(gaps))
+                if gaps[j] <= self.p.part_gap_m:
+                    joined = clusters[j].join(part)
+                    if self._body_sized(joined):
+                        clusters[j] = joined
+                        free.remove(part)
+                        changed = True
+        return self._merge(clusters)
 
-    def detection(self, g: _Group, t_mono_s: float) -> Detection:
-        u, v = self.full(g.sx / g.pixels, g.sy / g.pixels)
-        sx, sy = self.sx, self.sy
-        x0, y0 = math.floor(g.x0 * sx), math.floor(g.y0 * sy)
-        x1 = min(self.frame_w, math.ceil(g.x1 * sx))
-        y1 = min(self.frame_h, math.ceil(g.y1 * sy))
-        cloth_share = 1.0 - g.skin_pixels / g.pixels
-        score = 0.6 + (0.2 if cloth_share > 0.2 else 0.0) + (0.1 if g.seeds >= 2 else 0.0)
+    def _merge(self, clusters: list[_Node]) -> list[_Node]:
+        """Closest pairs first, while the union is still one body."""
+        while len(clusters) > 1:
+            best: tuple[float, int, int] | None = None
+            for i in range(len(clusters)):
+                for j in range(i + 1, len(clusters)):
+                    gap = self._gap_m(clusters[i], clusters[j])
+                    if gap <= self.p.seed_gap_m and (best is None or gap < best[0]):
+                        joined = clusters[i].join(clusters[j])
+                        if self._body_sized(joined):
+                            best = (gap, i, j)
+            if best is None:
+                break
+            _, i, j = best
+            clusters[i] = clusters[i].join(clusters[j])
+            del clusters[j]
+        return clusters
+
+    def cut_by_frame(self, n: _Node) -> bool:
+        """The node's pixels touch the left, right or bottom edge of the frame."""
+        g = self.grid
+        return n.x0 <= 0 or n.x1 >= g.work_w or (n.y1 >= g.work_h and g.row_v[-1] >= g.frame_h - 4)
+
+    def detection(self, n: _Node, t_mono_s: float) -> Detection:
+        u, v = n.su / n.frame_px, n.sv / n.frame_px
+        g = self.grid
+        v0, _ = g.frame_rows(n.y0, n.y0 + 1)
+        _, v1 = g.frame_rows(n.y1 - 1, n.y1)
+        x0 = math.floor(n.x0 * g.sx)
+        x1 = min(g.frame_w, math.ceil(n.x1 * g.sx))
+        v1 = min(g.frame_h, v1)
+        cloth_share = 1.0 - sum(1 for k, _ in n.labels if k == 0) / len(n.labels)
+        score = 0.6 + (0.2 if cloth_share > 0.2 else 0.0) + (0.1 if n.seeds >= 2 else 0.0)
         return Detection(
             t_mono_s=t_mono_s,
             u_px=u,
             v_px=v,
-            bbox_xywh_px=(x0, y0, max(1, x1 - x0), max(1, y1 - y0)),
-            visible_area_px=g.pixels * self.px_area,
+            bbox_xywh_px=(x0, v0, max(1, x1 - x0), max(1, v1 - v0)),
+            visible_area_px=n.frame_px,
             score=min(0.95, score),
             source="classic",
         )

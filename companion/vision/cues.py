@@ -13,6 +13,10 @@ ratios are mostly noise, so pixels below ``min_intensity`` carry no colour.
   skin. Pale skin on a beige floor is then missed: a limit of colour cues.
 - Clothing: pixels clearly more saturated (further from grey in rg) than the
   frame's background, and not skin. Grey slabs, concrete and dust never count.
+- Dark and bright: grey-ish pixels much darker (black, navy, dark trousers, shoes)
+  or much brighter (white, dusty clothing) than the floor around them, as a ratio
+  to the local floor luma (a block median), so a light zone's level cancels out.
+  These only ever extend a body that skin has found; alone they are never a victim.
 
 Shape features tell man-made debris (straight-edged, convex, rectangular) from body
 parts (rounded, irregular).
@@ -38,6 +42,10 @@ class ColourParams:
     skin_from_background: float = 0.015  # skin differs at least this much from the floor's rg
     background_spread_k: float = 3.0  # ... and by this many robust sigmas of the floor's rg
     background_share_max: float = 0.35  # a cue covering more of the frame is background
+    dark_ratio: float = 0.7  # luma below this share of the local floor's: dark clothing
+    bright_ratio: float = 1.5  # luma above this multiple of the local floor's: white clothing
+    min_floor_luma: float = 20.0  # local floor darker than this (after enhancement): no cue
+    floor_block_px: int = 32  # block of the local floor luma median
 
 
 @dataclass(frozen=True)
@@ -50,7 +58,7 @@ class Background:
 @dataclass(frozen=True)
 class Masks:
     skin: np.ndarray  # uint8 0/255
-    cloth: np.ndarray  # uint8 0/255
+    cloth: np.ndarray  # uint8 0/255: saturated clothing, dark or bright clothing
     luma: np.ndarray  # uint8
     background: Background
 
@@ -65,7 +73,7 @@ def chromaticity(image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 SKIN_HUE_DEG = (-30.0, 10.0)  # direction from grey in the (r, g) plane
-SKIN_SATURATION = (0.035, 0.26)  # distance from grey in the (r, g) plane
+SKIN_SATURATION = (0.035, 0.225)  # distance from grey in the (r, g) plane
 
 
 def skin_locus(r: np.ndarray, g: np.ndarray, grey_radius: float) -> np.ndarray:
@@ -73,10 +81,12 @@ def skin_locus(r: np.ndarray, g: np.ndarray, grey_radius: float) -> np.ndarray:
 
     With dr = r - 1/3, dg = g - 1/3, skin lies at hue atan2(dg, dr) in [-30, +10] deg
     (reddish-orange, slightly magenta to slightly yellow) and saturation
-    hypot(dr, dg) in [0.035, 0.26]: pale skin under white light (~0.05), tan and
-    dark skin (~0.1-0.13), saturated brown/sienna skin in warm light (~0.2). Orange
-    and red paint and fabric are more saturated (> 0.3). Wood and cardboard fall
-    inside: shape tests have to reject them.
+    hypot(dr, dg) in [0.035, 0.225]: pale skin under white light (~0.05), tan and
+    dark skin (~0.1-0.13), saturated brown/sienna skin (~0.17-0.21). Hi-vis orange
+    (240, 150, 30) has the hue of skin at 0.24: the upper bound keeps it clothing
+    (at 0.26 an orange shirt and the face above it were one skin region). Red paint
+    and fabric are more saturated (> 0.3). Wood and cardboard fall inside: shape
+    tests have to reject them.
     """
     dr = r - GREY_R
     dg = g - GREY_G
@@ -104,7 +114,19 @@ def skin_pixels(
     return skin_locus(r, g, params.grey_radius) & lit & off_bg, r, g, lit
 
 
-def colour_masks(image_bgr: np.ndarray, params: ColourParams) -> Masks:
+def colour_masks(
+    image_bgr: np.ndarray,
+    params: ColourParams,
+    far_rows: np.ndarray | None = None,
+    contrast_luma: np.ndarray | None = None,
+) -> Masks:
+    """Skin and clothing masks of a (working, enhanced) image.
+
+    ``contrast_luma`` is the luma the dark/bright cue compares with the local floor:
+    the image before enhancement (gamma and CLAHE change luma ratios, and the ratio
+    is what holds from full light to a dark zone); by default the image's own.
+    ``far_rows`` flags rows where a hand is one or two rows tall (grid.py).
+    """
     r, g, _ = chromaticity(image_bgr)
     # The background's chromaticity: the median of a subsample (the floor dominates).
     r_sub, g_sub = r[::4, ::4], g[::4, ::4]
@@ -121,6 +143,10 @@ def colour_masks(image_bgr: np.ndarray, params: ColourParams) -> Masks:
         & ~skin
         & (sat > max(params.cloth_min_saturation, bg_sat + params.cloth_above_background))
     )
+    # The blended rim of saturated clothing on a grey floor (red + grey = a muted
+    # orange) has skin's colour: skin right next to clothing counts as clothing rim.
+    rim = cv2.dilate(cloth.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    skin &= ~rim
     n = skin.size
     skin_u8: np.ndarray = skin.astype(np.uint8) * 255
     cloth_u8: np.ndarray = cloth.astype(np.uint8) * 255
@@ -129,13 +155,46 @@ def colour_masks(image_bgr: np.ndarray, params: ColourParams) -> Masks:
         cloth_u8[:] = 0
     if np.count_nonzero(skin) > params.background_share_max * n:
         skin_u8[:] = 0
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
-    skin_u8 = cv2.morphologyEx(skin_u8, cv2.MORPH_OPEN, kernel)  # noise, thin text strokes
-    skin_u8 = cv2.morphologyEx(skin_u8, cv2.MORPH_CLOSE, kernel)
-    cloth_u8 = cv2.morphologyEx(cloth_u8, cv2.MORPH_OPEN, kernel)
-    cloth_u8 = cv2.morphologyEx(cloth_u8, cv2.MORPH_CLOSE, kernel)
     luma = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+    raw = luma if contrast_luma is None else contrast_luma
+    floor = local_floor_luma(raw, params.floor_block_px)
+    lit_floor = floor >= params.min_floor_luma
+    lf = raw.astype(np.float32)
+    contrast = lit_floor & ((lf < params.dark_ratio * floor) | (lf > params.bright_ratio * floor))
+    contrast &= ~skin
+    if np.count_nonzero(contrast) <= params.background_share_max * n:
+        cloth_u8[contrast] = 255
+    skin_u8 = _clean(skin_u8, far_rows)  # noise, thin text strokes
+    cloth_u8 = _clean(cloth_u8, far_rows)
     return Masks(skin_u8, cloth_u8, luma, bg)
+
+
+def _clean(mask: np.ndarray, far_rows: np.ndarray | None) -> np.ndarray:
+    """Opening (specks, thin strokes) then closing, 3x3. In far floor rows a hand or
+    a leg is one or two rows tall: there the opening runs along the row only."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+    opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
+    if far_rows is not None and far_rows.any():
+        wide = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((1, 3), np.uint8))
+        opened[far_rows] = wide[far_rows]
+    closed: np.ndarray = cv2.morphologyEx(opened, cv2.MORPH_CLOSE, kernel)
+    return closed
+
+
+def local_floor_luma(luma: np.ndarray, block_px: int) -> np.ndarray:
+    """The floor's luma around each pixel (float32): medians of block_px blocks,
+    a 3x3 median over blocks (a body filling a block does not count), upsampled."""
+    h, w = luma.shape
+    bh, bw = max(1, h // block_px), max(1, w // block_px)
+    crop = luma[: bh * block_px, : bw * block_px] if h >= block_px and w >= block_px else luma
+    if crop.shape != (bh * block_px, bw * block_px):
+        return np.full((h, w), float(np.median(luma)), np.float32)
+    blocks = crop.reshape(bh, block_px, bw, block_px).transpose(0, 2, 1, 3).reshape(bh, bw, -1)
+    med = np.median(blocks, axis=2).astype(np.uint8)
+    if bh >= 3 and bw >= 3:
+        med = cv2.medianBlur(med, 3)
+    up: np.ndarray = cv2.resize(med, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    return up
 
 
 @dataclass(frozen=True)
@@ -222,3 +281,92 @@ def text_like_labels(stats: np.ndarray, min_neighbours: int = 2) -> set[int]:
 def equivalent_size_m(area_px: float, metres_per_px: float) -> float:
     """The side of a square with the same floor area (m)."""
     return math.sqrt(max(area_px, 0.0)) * metres_per_px
+
+
+@dataclass(frozen=True)
+class FloorShape:
+    """An outline measured on the floor (metres), parts on the frame border left out."""
+
+    area_m2: float
+    long_m: float  # sides of the minimum-area rectangle
+    short_m: float
+    rect_fill: float  # area / that rectangle's area
+    solidity: float  # area / convex hull area
+    straight_share: float  # share of the (non-border) outline on long straight runs
+    corners: int  # vertices of the polygon approximation
+    border_share: float  # share of the outline on the frame border
+    long_px: float  # the outline's longest side in the image it was traced in
+
+
+def floor_shape(
+    floor_pts: np.ndarray, on_border: np.ndarray, outline_px: np.ndarray
+) -> FloorShape | None:
+    """Shape features of a closed outline given as floor points (N, 2), metres.
+
+    ``on_border`` flags points on the frame's edge: a plank cut by the frame edge is
+    still a plank, so edges along the border count neither as straight nor as curved.
+    ``outline_px`` is the same outline in the pixels it was traced in (its size says
+    whether straight edges can be told from curves at all).
+    """
+    ok = np.isfinite(floor_pts).all(axis=1)
+    pts = floor_pts[ok].astype(np.float32)
+    border = on_border[ok]
+    if len(pts) < 3:
+        return None
+    area = float(abs(cv2.contourArea(pts)))
+    if area <= 0.0:
+        return None
+    hull_area = float(cv2.contourArea(cv2.convexHull(pts)))
+    (_, _), (w, h), _ = cv2.minAreaRect(pts)
+    steps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
+    perimeter = float(steps.sum())
+    step = float(np.median(steps)) if len(steps) else 0.0
+    approx_idx = _approx_indices(pts, max(0.015 * perimeter, step))
+    straight = free = 0.0
+    n = len(pts)
+    for a, b in zip(approx_idx, approx_idx[1:] + approx_idx[:1], strict=True):
+        idx = np.arange(a, b if b > a else b + n) % n
+        seg_border = border[idx].mean() > 0.5
+        length = float(np.linalg.norm(pts[b] - pts[a]))
+        if seg_border:
+            continue
+        free += length
+        if length >= max(perimeter / 6.0, 3.0 * step):
+            straight += length
+    border_len = float(steps[border].sum())
+    return FloorShape(
+        area_m2=area,
+        long_m=float(max(w, h)),
+        short_m=float(min(w, h)),
+        rect_fill=area / (w * h) if w * h > 0 else 0.0,
+        solidity=area / hull_area if hull_area > 0 else 0.0,
+        straight_share=straight / free if free > 0 else 0.0,
+        corners=len(approx_idx),
+        border_share=border_len / perimeter if perimeter > 0 else 0.0,
+        long_px=float(max(cv2.minAreaRect(outline_px.astype(np.float32))[1])),
+    )
+
+
+def _approx_indices(pts: np.ndarray, epsilon: float) -> list[int]:
+    """Indices of the polygon approximation's vertices, in outline order."""
+    approx = cv2.approxPolyDP(pts.reshape(-1, 1, 2), epsilon, True).reshape(-1, 2)
+    # approxPolyDP returns a subset of the points: find their indices.
+    d = np.abs(pts[None, :, :] - approx[:, None, :]).sum(axis=2)
+    idx = sorted({int(i) for i in d.argmin(axis=1)})
+    return idx
+
+
+def floor_looks_man_made(s: FloorShape, luma_std: float, flat_luma_std: float = 6.0) -> bool:
+    """Rectangles, planks, straight-edged convex polygons, flat few-cornered shapes,
+    judged on the floor (perspective removed). Bodies and body parts are rounded."""
+    if s.rect_fill > 0.88 and s.corners <= 6 and s.border_share < 0.2:
+        return True  # a rectangle, at any angle
+    if s.long_px < MIN_OUTLINE_PX:
+        return False  # too few pixels to tell straight edges from curves
+    if s.long_m >= 3.0 * s.short_m and s.straight_share > 0.6 and s.rect_fill > 0.7:
+        return True  # a plank or beam: long, thin, straight parallel sides
+    if s.straight_share > 0.8 and s.solidity > 0.9:
+        return True  # a convex polygon with long straight edges (slab, piece, triangle)
+    if s.straight_share > 0.6 and s.solidity > 0.9 and s.corners <= 6:
+        return True  # few corners, mostly straight: a slab's corner, a broken piece
+    return s.corners <= 5 and s.solidity > 0.9 and luma_std < flat_luma_std
