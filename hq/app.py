@@ -211,7 +211,7 @@ class HqApp:
             decoder = self._decoder(index, peer)
             messages = decoder.feed(data)
             if self.endpoints[index].datagram:
-                _drop_partial_frame(decoder)
+                decoder.reset()  # a tail after a whole datagram is garbage
             for msg in messages:
                 route = Route(index, peer, False, msg.get_srcSystem(), msg.get_srcComponent())
                 if msg.get_msgId() == self._m.MAVLINK_MSG_ID_TUNNEL:
@@ -454,20 +454,6 @@ class HqApp:
             log.error("export to %s failed: %s", self.options.export_dir, exc)
             return
         self.counters.exports += 1
-
-
-def _drop_partial_frame(codec: Codec) -> None:
-    """Forget an incomplete frame at the end of a UDP datagram.
-
-    Senders put whole frames in each datagram, so a tail is garbage (a truncated
-    or corrupt packet); kept, it would wait for bytes that never come and swallow
-    the next datagram's frames. TODO(mavlink_io): a public Codec.reset(); until
-    then the codec's private buffer is cleared here.
-    """
-    buf = getattr(codec, "_buf", None)
-    if isinstance(buf, bytearray) and buf:
-        codec.counters.garbage_bytes += len(buf)
-        buf.clear()
 
 
 def _hq_signing(signing: Signing | None) -> Signing | None:

@@ -122,6 +122,19 @@ class Codec:
                 del self._buf[:consumed]
             return out
 
+    def reset(self) -> int:
+        """Drop an incomplete frame held from earlier input; the bytes dropped.
+
+        For datagram links: every UDP datagram carries whole frames, so a tail left
+        after one is garbage (a truncated packet), and kept it would wait for bytes
+        that never come and swallow the frames of the next datagram.
+        """
+        with self._decode_lock:
+            dropped = len(self._buf)
+            self._buf.clear()
+            self.counters.garbage_bytes += dropped
+            return dropped
+
     def decode_frame(self, frame: bytes) -> MavMessage | None:
         """Decode one complete frame (e.g. from a TUNNEL payload); None if it is not valid."""
         with self._decode_lock:

@@ -156,3 +156,16 @@ def test_random_noise_yields_nothing_and_never_raises() -> None:
     # 200 kB of noise: a false frame needs a 16-bit CRC match on a known ID; expect ~0.
     assert len(got) <= 2
     assert rx.counters.garbage_bytes > 150_000
+
+
+def test_reset_drops_a_truncated_datagram_tail() -> None:
+    """UDP carries whole frames: after reset, a truncated tail cannot swallow the next."""
+    sender = Codec(1, 1)
+    receiver = Codec(255, 190)
+    m = sender.module
+    frame = sender.encode(m.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))
+    assert receiver.feed(frame[:-5]) == []  # the datagram's truncated frame
+    assert receiver.reset() == len(frame) - 5
+    (msg,) = receiver.feed(sender.encode(m.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3)))
+    assert msg.get_type() == "HEARTBEAT"
+    assert receiver.counters.garbage_bytes >= len(frame) - 5
