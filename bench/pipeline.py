@@ -1,0 +1,151 @@
+"""Whole pipeline throughput on one core: frames per second at 640x480, vision time per frame
+
+A mission is recorded with ``scenarios.record.record`` (preset "mixed", the first
+60 s of its route, 10 frames/s, 640x480 JPEG, fixed start time) and its frames go
+through ``companion.pipeline.Pipeline.process`` exactly as in replay and live: pose
+interpolation, vision (enhancement, detection, visibility), geolocation, Kalman
+tracking and the reporting policy. The recorded camera.toml is the configuration.
+OpenCV runs with one thread (``python -m bench`` also pins the process to one core).
+Timed: ``Pipeline.process`` only. JPEG decoding and telemetry decoding happen
+outside the timer (the live service gets decoded frames from the camera thread and
+poses from the link thread); decoding is reported on its own. ``vision_ms`` is the
+pipeline's own measure (detection, visibility and geolocation of every detection);
+``track_report_ms`` is the rest (tracker update and reporting decisions).
+Target (issue 8): comfortably above the camera's 10 frames/s on the Pi 5.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from companion.calibration import camera_model
+from companion.config import load_config
+from companion.pipeline import Pipeline
+from companion.replay import LOOKAHEAD_S
+from companion.reporting import ReportPolicy
+from companion.sources.base import Frame, mono_minus_unix_s
+from companion.vision import make_detector
+from fusion.pose import PoseHistory
+from fusion.tracker import VictimTracker
+from fusion.types import PoseSample
+from mavlink_io.telemetry import TelemetryDecoder, is_autopilot_heartbeat
+from mavlink_io.tlog import read_tlog
+from scenarios.record import record
+from scenarios.world import preset
+
+log = logging.getLogger(__name__)
+
+WORLD = "mixed"
+DURATION_S = 60.0
+FPS = 10.0
+START_UNIX_S = 1_700_000_000.0
+
+
+def _poses(tlog: Path, offset_s: float) -> list[PoseSample]:
+    """Every pose the autopilot sent, in order (one vehicle, no reboots in a recording)."""
+    decoder = TelemetryDecoder()
+    sysid = 0
+    out = []
+    for t_unix_s, msg in read_tlog(tlog):
+        if is_autopilot_heartbeat(msg, sysid):
+            sysid = sysid or msg.get_srcSystem()
+            continue
+        if sysid and (msg.get_srcSystem(), msg.get_srcComponent()) == (sysid, 1):
+            update = decoder.handle(msg, t_unix_s + offset_s)
+            if update.pose is not None:
+                out.append(update.pose)
+    return out
+
+
+def _pct(values: list[float], q: float) -> float:
+    return round(float(np.percentile(values, q)), 2)
+
+
+def _measure(mission: Path) -> dict[str, Any]:
+    config = load_config(mission / "camera.toml")
+    offset_s = mono_minus_unix_s()
+    poses = _poses(mission / "mission.tlog", offset_s)
+    history = PoseHistory(config.vehicle.pose_history_s)
+    rep = config.reporting
+    pipeline = Pipeline(
+        config,
+        camera_model(config.camera),
+        make_detector(config.detector),
+        VictimTracker(config.tracker),
+        ReportPolicy(rep.move_threshold_sigma, rep.move_min_m, rep.update_min_interval_s),
+    )
+    files = sorted((mission / "frames").glob("*.jpg"), key=lambda p: int(p.stem))
+    total_ms: list[float] = []
+    vision_ms: list[float] = []
+    decode_ms: list[float] = []
+    detections = 0
+    next_pose = 0
+    for index, path in enumerate(files):
+        t0 = time.perf_counter()
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        decode_ms.append((time.perf_counter() - t0) * 1e3)
+        if image is None:
+            raise RuntimeError(f"{path}: the recorder wrote a frame OpenCV cannot read")
+        t_unix_s = int(path.stem) / 1e6
+        while next_pose < len(poses) and poses[next_pose].t_mono_s <= (
+            t_unix_s + offset_s + LOOKAHEAD_S
+        ):
+            history.add(poses[next_pose])
+            next_pose += 1
+        frame = Frame(image, t_unix_s + offset_s, t_unix_s, index)
+        t0 = time.perf_counter()
+        outcome = pipeline.process(frame, history)
+        total_ms.append((time.perf_counter() - t0) * 1e3)
+        vision_ms.append(outcome.vision_ms)
+        detections += len(outcome.detections)
+    rest = [t - v for t, v in zip(total_ms, vision_ms, strict=True)]
+    return {
+        "frames": len(files),
+        "frames_without_pose": pipeline.counters.frames_without_pose,
+        "detections_per_frame": round(detections / max(len(files), 1), 2),
+        "pipeline_fps": round(1e3 * len(total_ms) / sum(total_ms), 1),
+        "pipeline_ms_median": round(statistics.median(total_ms), 2),
+        "pipeline_ms_p95": _pct(total_ms, 95),
+        "vision_ms_median": round(statistics.median(vision_ms), 2),
+        "vision_ms_p95": _pct(vision_ms, 95),
+        "track_report_ms_median": round(statistics.median(rest), 3),
+        "track_report_ms_p95": _pct(rest, 95),
+        "jpeg_decode_ms_median": round(statistics.median(decode_ms), 2),
+        "victims_tracked": len(pipeline.tracker.victims()),
+    }
+
+
+def run() -> dict[str, Any]:
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with tempfile.TemporaryDirectory(prefix="bench-pipeline-") as tmp:
+            mission = Path(tmp)
+            record(
+                preset(WORLD), mission, duration_s=DURATION_S, fps=FPS, start_unix_s=START_UNIX_S
+            )
+            figures = _measure(mission)
+    finally:
+        cv2.setNumThreads(threads)
+    shape = f"640x480, preset {WORLD}, {DURATION_S:g} s at {FPS:g} frames/s"
+    return {"mission": shape, **figures}
+
+
+if __name__ == "__main__":
+    import json
+    import os
+
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    logging.basicConfig(level=logging.WARNING)
+    print(json.dumps(run(), indent=1))
+    sys.exit(0)
