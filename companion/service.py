@@ -126,11 +126,16 @@ class Service:
             config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
         )
         self.tlog = TlogWriter(config.paths.tlogs, int(config.paths.tlog_max_mb * 1e6))
-        self.frames_dir = (
-            config.paths.state_dir / "frames" / time.strftime("%Y%m%d-%H%M%S")
-            if config.paths.record_frames
-            else None
-        )
+        self.frames_dir: Path | None = None
+        if config.paths.record_frames:
+            self.frames_dir = config.paths.state_dir / "frames" / time.strftime("%Y%m%d-%H%M%S")
+            try:
+                self.frames_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                log.warning(
+                    "not recording frames: cannot create %s: %s", self.frames_dir, exc.strerror
+                )
+                self.frames_dir = None
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
         self.people: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
@@ -327,8 +332,17 @@ class Service:
             self._camera_ok = ok
             if frame is not None:
                 self.mailbox.put(frame)
-                if self.frames_dir is not None:
-                    write_frame(self.frames_dir, frame)
+                self._record_frame(frame)
+
+    def _record_frame(self, frame: Frame) -> None:
+        """Save the frame for replay; a full disk stops the recording, not the camera."""
+        if self.frames_dir is None:
+            return
+        try:
+            write_frame(self.frames_dir, frame)
+        except CameraError as exc:
+            log.warning("frame recording stopped: %s", exc)
+            self.frames_dir = None
 
     def _processing_loop(self) -> None:
         watchdog_s = watchdog_period_s()
@@ -562,7 +576,3 @@ class Service:
         self.vehicle.close()
         self.tlog.close()
         self.store.close()
-
-
-def state_path(config: Config) -> Path:
-    return config.paths.state_dir / "companion.sqlite"

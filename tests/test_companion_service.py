@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 from conftest import NotifySocket
 
+from companion.config import load_config
+from companion.replay import replay, result_document
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.world import preset
@@ -41,7 +43,7 @@ def ground(sim: LiveSim) -> Iterator[GroundPeer]:
     peer.close()
 
 
-def _config(tmp_path: Path, sim: LiveSim) -> Path:
+def _config(tmp_path: Path, sim: LiveSim, record_frames: bool = False) -> Path:
     cfg = tmp_path / "companion.toml"
     cfg.write_text(
         f"""
@@ -58,6 +60,7 @@ source = "{sim.camera_source}"
 reopen_max_backoff_s = 0.5
 [paths]
 state_dir = "{tmp_path / "state"}"
+record_frames = {str(record_frames).lower()}
 """
     )
     return cfg
@@ -110,9 +113,8 @@ def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
     tmp_path: Path, sim: LiveSim, ground: GroundPeer
 ) -> None:
     ground.acking.set()
-    proc = _start(
-        _config(tmp_path, sim), tmp_path / "companion.log", "--debug-processing-delay-s", "0.7"
-    )
+    cfg = _config(tmp_path, sim, record_frames=True)
+    proc = _start(cfg, tmp_path / "companion.log", "--debug-processing-delay-s", "0.7")
     try:
         # Our heartbeat reaches the ground through the rover: onboard controller, vehicle sysid.
         hb = ground.wait_for(
@@ -141,6 +143,13 @@ def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
         assert status.fps < 2.0
     finally:
         assert _stop(proc) == 0, (tmp_path / "companion.log").read_text()[-3000:]
+    # The mission was recorded (every frame, though processing dropped most): the
+    # offline replay of the service's own tlog and frames finds the victim again.
+    (tlog,) = (tmp_path / "state" / "tlogs").glob("*.tlog")
+    (frames,) = (tmp_path / "state" / "frames").iterdir()
+    doc = result_document(replay(load_config(cfg), tlog, frames))
+    assert doc["frames"] >= 100 and doc["frames_without_pose"] <= 0.1 * doc["frames"]
+    assert doc["victims"], "the replay of the recording found no victim"
 
 
 def test_sigterm_stops_within_5_s_and_ready_comes_first(
