@@ -43,6 +43,7 @@ from companion.vision.cues import (
     equivalent_size_m,
     floor_looks_man_made,
     floor_shape,
+    region_is_skin,
     skin_pixels,
     text_like_labels,
 )
@@ -204,7 +205,9 @@ class _Frame:
 
     # -- regions ---------------------------------------------------------------------
 
-    def _components(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    def _components(
+        self, mask: np.ndarray, with_colour: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
         rows = np.broadcast_to(np.arange(labels.shape[0])[:, None], labels.shape)
         flat = labels.ravel()
@@ -218,7 +221,11 @@ class _Frame:
             ),
             "v": np.bincount(flat, weights=w * v_row[rows].ravel(), minlength=n),
             "m2": np.bincount(flat, weights=a, minlength=n),
+            "n": np.bincount(flat, minlength=n).astype(np.float64),
         }
+        if with_colour:
+            sums["r"] = np.bincount(flat, weights=self.masks.r.ravel(), minlength=n)
+            sums["g"] = np.bincount(flat, weights=self.masks.g.ravel(), minlength=n)
         return labels, stats, sums
 
     def _node(
@@ -259,7 +266,7 @@ class _Frame:
     # -- skin seeds ------------------------------------------------------------------
 
     def skin_seeds(self) -> list[_Node]:
-        labels, stats, sums = self._components(self.masks.skin)
+        labels, stats, sums = self._components(self.masks.skin, with_colour=True)
         self.skin_labels = labels
         text = self._text_like(labels, stats)
         seeds = []
@@ -279,6 +286,11 @@ class _Frame:
                 continue
             if not self.row_m[int(stats[i][1] + stats[i][3] // 2)] <= self.p.max_row_m:
                 self.det._reject("skin too far to judge")
+                continue
+            n_px = float(sums["n"][i])
+            mean_r, mean_g = float(sums["r"][i]) / n_px, float(sums["g"][i]) / n_px
+            if not region_is_skin(mean_r, mean_g, self.p.colour, self.masks.background):
+                self.det._reject("skin colour only by noise")
                 continue
             made = self._node(0, labels, stats, sums, i)
             if made is None:
@@ -396,7 +408,7 @@ class _Frame:
             shape = floor_shape(floor, border, outline)
             if shape is None:
                 continue
-            if floor_looks_man_made(shape, self._luma_std(labels, node, i)):
+            if floor_looks_man_made(shape, self._luma_std(labels, node, i), strict=False):
                 self.det._reject("cloth looks man-made")
                 continue
             parts.append(node)

@@ -61,6 +61,8 @@ class Masks:
     cloth: np.ndarray  # uint8 0/255: saturated clothing, dark or bright clothing
     luma: np.ndarray  # uint8
     background: Background
+    r: np.ndarray  # rg chromaticity planes (float32)
+    g: np.ndarray
 
 
 def chromaticity(image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -101,6 +103,16 @@ def skin_locus(r: np.ndarray, g: np.ndarray, grey_radius: float) -> np.ndarray:
         & (sat <= SKIN_SATURATION[1])
     )
     return locus
+
+
+def region_is_skin(mean_r: float, mean_g: float, params: ColourParams, bg: Background) -> bool:
+    """A region's mean chromaticity is skin and clearly off the floor's (twice the
+    per-pixel margin). Sensor noise in a dark zone makes specks whose pixels are
+    skin-coloured by chance; their mean falls back towards the floor's colour."""
+    r, g = np.array([mean_r]), np.array([mean_g])
+    margin = 2.0 * max(params.skin_from_background, params.background_spread_k * bg.sigma)
+    off_bg = (mean_r - bg.r) ** 2 + (mean_g - bg.g) ** 2 > margin**2
+    return bool(skin_locus(r, g, params.grey_radius)[0]) and off_bg
 
 
 def skin_pixels(
@@ -166,7 +178,7 @@ def colour_masks(
         cloth_u8[contrast] = 255
     skin_u8 = _clean(skin_u8, far_rows)  # noise, thin text strokes
     cloth_u8 = _clean(cloth_u8, far_rows)
-    return Masks(skin_u8, cloth_u8, luma, bg)
+    return Masks(skin_u8, cloth_u8, luma, bg, r, g)
 
 
 def _clean(mask: np.ndarray, far_rows: np.ndarray | None) -> np.ndarray:
@@ -320,19 +332,7 @@ def floor_shape(
     (_, _), (w, h), _ = cv2.minAreaRect(pts)
     steps = np.linalg.norm(np.roll(pts, -1, axis=0) - pts, axis=1)
     perimeter = float(steps.sum())
-    step = float(np.median(steps)) if len(steps) else 0.0
-    approx_idx = _approx_indices(pts, max(0.015 * perimeter, step))
-    straight = free = 0.0
-    n = len(pts)
-    for a, b in zip(approx_idx, approx_idx[1:] + approx_idx[:1], strict=True):
-        idx = np.arange(a, b if b > a else b + n) % n
-        seg_border = border[idx].mean() > 0.5
-        length = float(np.linalg.norm(pts[b] - pts[a]))
-        if seg_border:
-            continue
-        free += length
-        if length >= max(perimeter / 6.0, 3.0 * step):
-            straight += length
+    straight_share, corners = _straightness(outline_px[ok].astype(np.float32), border)
     border_len = float(steps[border].sum())
     return FloorShape(
         area_m2=area,
@@ -340,11 +340,32 @@ def floor_shape(
         short_m=float(min(w, h)),
         rect_fill=area / (w * h) if w * h > 0 else 0.0,
         solidity=area / hull_area if hull_area > 0 else 0.0,
-        straight_share=straight / free if free > 0 else 0.0,
-        corners=len(approx_idx),
+        straight_share=straight_share,
+        corners=corners,
         border_share=border_len / perimeter if perimeter > 0 else 0.0,
         long_px=float(max(cv2.minAreaRect(outline_px.astype(np.float32))[1])),
     )
+
+
+def _straightness(px: np.ndarray, border: np.ndarray) -> tuple[float, int]:
+    """(share of the non-border outline on long straight runs, polygon corners),
+    measured in the image: a straight edge on the floor is straight in the image
+    (perspective keeps lines), and pixel steps are even there, while far floor rows
+    are tens of millimetres apart."""
+    steps = np.linalg.norm(np.roll(px, -1, axis=0) - px, axis=1)
+    perimeter = float(steps.sum())
+    idx_approx = _approx_indices(px, max(0.015 * perimeter, 1.0))
+    straight = free = 0.0
+    n = len(px)
+    for a, b in zip(idx_approx, idx_approx[1:] + idx_approx[:1], strict=True):
+        idx = np.arange(a, b if b > a else b + n) % n
+        length = float(np.linalg.norm(px[b] - px[a]))
+        if border[idx].mean() > 0.5:
+            continue
+        free += length
+        if length >= max(perimeter / 6.0, 4.0):
+            straight += length
+    return (straight / free if free > 0 else 0.0), len(idx_approx)
 
 
 def _approx_indices(pts: np.ndarray, epsilon: float) -> list[int]:
@@ -356,15 +377,24 @@ def _approx_indices(pts: np.ndarray, epsilon: float) -> list[int]:
     return idx
 
 
-def floor_looks_man_made(s: FloorShape, luma_std: float, flat_luma_std: float = 6.0) -> bool:
+def floor_looks_man_made(
+    s: FloorShape, luma_std: float, flat_luma_std: float = 6.0, strict: bool = True
+) -> bool:
     """Rectangles, planks, straight-edged convex polygons, flat few-cornered shapes,
-    judged on the floor (perspective removed). Bodies and body parts are rounded."""
+    judged on the floor (perspective removed; straightness in the image).
+
+    ``strict=False`` (clothing next to skin): only whole rectangles and planks. The
+    visible part of a buried torso is cut by the slab's straight edge and is still
+    clothing; a board or a sheet lying beside the body is a rectangle of its own.
+    """
     if s.rect_fill > 0.88 and s.corners <= 6 and s.border_share < 0.2:
         return True  # a rectangle, at any angle
     if s.long_px < MIN_OUTLINE_PX:
         return False  # too few pixels to tell straight edges from curves
     if s.long_m >= 3.0 * s.short_m and s.straight_share > 0.6 and s.rect_fill > 0.7:
         return True  # a plank or beam: long, thin, straight parallel sides
+    if not strict:
+        return False
     if s.straight_share > 0.8 and s.solidity > 0.9:
         return True  # a convex polygon with long straight edges (slab, piece, triangle)
     if s.straight_share > 0.6 and s.solidity > 0.9 and s.corners <= 6:
