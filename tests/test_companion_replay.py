@@ -43,14 +43,19 @@ def _replay_cli(mission: Path, out: Path) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
-def test_replay_finds_the_victim_where_it_lies(mission: Path, tmp_path: Path) -> None:
-    out = tmp_path / "victims.json"
+@pytest.fixture(scope="module")
+def cli_output(mission: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("replay") / "victims.json"
     result = _replay_cli(mission, out)
     assert result.returncode == 0, result.stderr[-2000:]
-    doc = json.loads(out.read_text())
+    return out
+
+
+def test_replay_finds_the_victim_where_it_lies(mission: Path, cli_output: Path) -> None:
+    doc = json.loads(cli_output.read_text())
     assert doc["format"] == "rescue-companion/replay"
     assert doc["frames"] > 200 and doc["frames_without_pose"] <= 3
-    s = score(load_truth(mission / "ground_truth.json"), load_report(out))
+    s = score(load_truth(mission / "ground_truth.json"), load_report(cli_output))
     # Found, placed within 0.5 m (the simulated pose drifts by centimetres; the
     # body's visible centroid is what is located) and classed LIGHT. Duplicates and
     # false victims are guarded by the accuracy baseline (bench/accuracy_baseline.json).
@@ -61,15 +66,15 @@ def test_replay_finds_the_victim_where_it_lies(mission: Path, tmp_path: Path) ->
     origin = json.loads((mission / "ground_truth.json").read_text())["origin"]
     assert victim["lat_deg"] == pytest.approx(origin["lat_deg"], abs=1e-3)  # ~100 m: a building
     assert victim["first_reported_unix_s"] >= victim["first_seen_unix_s"]
-    png = cv2.imread(str(out.with_suffix(".png")))
+    png = cv2.imread(str(cli_output.with_suffix(".png")))
     assert png is not None and png.shape[0] > 100
 
 
-def test_replay_is_deterministic(mission: Path) -> None:
+def test_replay_is_deterministic(mission: Path, cli_output: Path) -> None:
+    """The same inputs give the same document, in another process and run."""
     config = load_config(mission / "camera.toml")
-    a = result_document(replay(config, mission / "mission.tlog", mission / "frames"))
-    b = result_document(replay(config, mission / "mission.tlog", mission / "frames"))
-    assert a == b
+    again = result_document(replay(config, mission / "mission.tlog", mission / "frames"))
+    assert json.loads(json.dumps(again)) == json.loads(cli_output.read_text())
 
 
 def test_missing_inputs_are_one_line_errors(mission: Path, tmp_path: Path) -> None:
