@@ -232,3 +232,41 @@ def test_sigkill_and_restart_lose_nothing_and_reannounce_nothing(
         assert all(seq > max(unacked) for seq in fresh)
     finally:
         assert _stop(proc) == 0, log.read_text()[-3000:]
+
+
+def test_survives_camera_loss_and_link_loss_and_says_so(
+    tmp_path: Path, sim: LiveSim, ground: GroundPeer
+) -> None:
+    proc = _start(_config(tmp_path, sim), tmp_path / "companion.log")
+    try:
+        ground.wait_for(lambda m: m.get_type() == "RESCUE_STATUS" and m.flags & 2, 30.0)  # CAMERA
+        # The camera disappears: people are told, the health flag drops, heartbeats go on.
+        sim.camera.close()
+        lost = time.monotonic()
+        ground.wait_for(
+            lambda m: m.get_type() == "STATUSTEXT" and "Camera lost" in str(m.text),
+            15.0,
+            since_s=lost,
+        )
+        ground.wait_for(
+            lambda m: m.get_type() == "RESCUE_STATUS" and not m.flags & 2, 10.0, since_s=lost
+        )
+        ground.wait_until(lambda: len(_heartbeats(ground, lost)) >= 3, 10.0)
+        assert ground.of_type("HEARTBEAT", lost)[-1].system_status == 5  # MAV_STATE_CRITICAL
+        # The autopilot link goes silent for 5 s (3 s is the loss threshold); when it
+        # comes back the companion says it is online again and requests its streams.
+        sim.rover.drop_link(5.0, link=0)
+        dropped = time.monotonic()
+        ground.wait_for(
+            lambda m: m.get_type() == "STATUSTEXT" and "online" in str(m.text),
+            20.0,
+            since_s=dropped + 4.0,
+        )
+        ground.wait_for(
+            lambda m: m.get_type() == "RESCUE_STATUS" and m.flags & 1, 10.0, since_s=dropped + 5.0
+        )
+        assert proc.poll() is None
+    finally:
+        assert _stop(proc) == 0, (tmp_path / "companion.log").read_text()[-3000:]
+    log = (tmp_path / "companion.log").read_text()
+    assert "link lost" in log and "Traceback" not in log
