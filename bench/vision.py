@@ -5,7 +5,10 @@ prints the dict as JSON. One OpenCV thread (cv2.setNumThreads(1)): "one core".
 
 - timing_ms: median and p90 over synthetic scenes for enhancement (full frame and
   the classic backend's 320 px working size), classic detection (including its own
-  enhancement), visibility, and the whole vision step; hog for comparison.
+  enhancement), visibility, and the whole vision step; hog for comparison. The
+  whole step again on rover views (``rover_vision_step``): frames rendered by the
+  scenarios package from the rover's camera (0.3 m up, grazing view) around the
+  ``mixed`` victims, with the geometry built from the pose as the pipeline does.
 - scenarios: for each preset of the scenarios package, frames rendered from poses
   that look at each victim from 1.5, 2.5 and 3.5 m (three bearings each; a grid
   over the floor when there are no victims), fixed seeds. Recall = frames where a
@@ -82,10 +85,42 @@ def timing() -> dict[str, Any]:
         "visibility": _timed(lambda i: [assess(d, scenes[i].geometry) for d in dets[i]], n),
         "vision_step": _timed(step, n),
     }
+    rover = _rover_frames()
+    if rover:
+
+        def rover_step(i: int) -> None:
+            image, geometry = rover[i]
+            for d in classic.detect(image, geometry, 0.0):
+                assess(d, geometry)
+
+        out["rover_frames"] = len(rover)
+        out["rover_vision_step"] = _timed(rover_step, len(rover))
     if hasattr(cv2, "HOGDescriptor"):
         hog = make_detector(DetectorConfig(backend="hog", enhance=False))
         out["hog_detect"] = _timed(lambda i: hog.detect(scenes[i].image, None, 0.0), 4, 1)
     return out
+
+
+def _rover_frames() -> list[tuple[np.ndarray, FrameGeometry]]:
+    """Rover-camera frames (and their geometry) around the mixed preset's victims."""
+    try:
+        from scenarios.camera import VEHICLE_HEIGHT_M, default_camera
+        from scenarios.render import Renderer
+        from scenarios.world import preset
+    except ImportError:
+        return []
+    from fusion.params import GeolocationParams
+    from fusion.types import PoseSample
+
+    world = preset("mixed")
+    camera = default_camera()
+    renderer = Renderer(world, camera, seed=7)
+    frames = []
+    for k, (n, e, yaw) in enumerate(_poses_for(world)):
+        pose = PoseSample(0.0, 0.0, n, e, -VEHICLE_HEIGHT_M, 0.0, 0.0, yaw)
+        image = renderer.render(pose, frame_key=k).image
+        frames.append((image, FrameGeometry.from_pose(camera, pose, GeolocationParams())))
+    return frames
 
 
 # -- scenarios ------------------------------------------------------------------------

@@ -53,6 +53,7 @@ from fusion.types import Detection
 
 _MIN_REGION_WORK_PX = 4  # smaller regions at working resolution are noise
 _MAX_OUTLINE_POINTS = 64  # outlines are subsampled to this many floor points
+MIN_RESOLVED_PX = 4.0  # a seed thinner than this (in the pixels it was traced in): no shape
 
 
 @dataclass(frozen=True)
@@ -184,6 +185,7 @@ class _Frame:
         self.w_row = grid.px_area_row  # frame pixels per working pixel, per row
         self.u_col, _ = grid.frame_uv(np.arange(grid.work_w), np.zeros(grid.work_w))
         self.area_row, self.row_m = self._floor_per_row()
+        self._weights = self._pixel_weights()
 
     # -- per-frame tables ------------------------------------------------------------
 
@@ -196,12 +198,28 @@ class _Frame:
         _, v = g.frame_uv(np.zeros(len(ys)), ys)
         half_u, half_v = g.sx / 2.0, g.row_k / 2.0
         pts = np.column_stack([u, v])
-        du = self.geometry.floor_ne_m(pts + np.column_stack([half_u + 0 * u, 0 * v]))
-        du -= self.geometry.floor_ne_m(pts - np.column_stack([half_u + 0 * u, 0 * v]))
-        dv = self.geometry.floor_ne_m(pts + np.column_stack([0 * u, half_v]))
-        dv -= self.geometry.floor_ne_m(pts - np.column_stack([0 * u, half_v]))
+        step_u = np.column_stack([half_u + 0 * u, 0 * v])
+        step_v = np.column_stack([0 * u, half_v])
+        n = len(ys)
+        f = self.geometry.floor_ne_m(
+            np.vstack([pts + step_u, pts - step_u, pts + step_v, pts - step_v])
+        )
+        du = f[:n] - f[n : 2 * n]
+        dv = f[2 * n : 3 * n] - f[3 * n :]
         area: np.ndarray = np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0])
         return area, np.linalg.norm(dv, axis=1)
+
+    def _pixel_weights(self) -> tuple[np.ndarray, ...]:
+        """Per working pixel (raveled): frame pixels, frame u and v times frame pixels,
+        floor m^2 (inf off the floor), for bincount sums over components."""
+        g = self.grid
+        shape = (g.work_h, g.work_w)
+        _, v_row = g.frame_uv(np.zeros(1), np.arange(g.work_h))
+        w = np.broadcast_to(self.w_row[:, None], shape)
+        wu = (self.w_row[:, None] * self.u_col[None, :]).ravel()
+        wv = np.broadcast_to((self.w_row * v_row)[:, None], shape).ravel()
+        m2 = np.broadcast_to(np.nan_to_num(self.area_row, nan=np.inf)[:, None], shape).ravel()
+        return w.ravel(), wu, wv, m2
 
     # -- regions ---------------------------------------------------------------------
 
@@ -209,23 +227,19 @@ class _Frame:
         self, mask: np.ndarray, with_colour: bool = False
     ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        rows = np.broadcast_to(np.arange(labels.shape[0])[:, None], labels.shape)
-        flat = labels.ravel()
-        w = self.w_row[rows].ravel()
-        a = np.nan_to_num(self.area_row, nan=np.inf)[rows].ravel()
-        _, v_row = self.grid.frame_uv(np.zeros(1), np.arange(labels.shape[0]))
+        on = np.flatnonzero(mask)  # the masks are sparse: sum over their pixels only
+        flat = labels.ravel()[on]
+        w_px, wu, wv, m2 = (w[on] for w in self._weights)
         sums = {
-            "px": np.bincount(flat, weights=w, minlength=n),
-            "u": np.bincount(
-                flat, weights=w * np.broadcast_to(self.u_col, labels.shape).ravel(), minlength=n
-            ),
-            "v": np.bincount(flat, weights=w * v_row[rows].ravel(), minlength=n),
-            "m2": np.bincount(flat, weights=a, minlength=n),
-            "n": np.bincount(flat, minlength=n).astype(np.float64),
+            "px": np.bincount(flat, weights=w_px, minlength=n),
+            "u": np.bincount(flat, weights=wu, minlength=n),
+            "v": np.bincount(flat, weights=wv, minlength=n),
+            "m2": np.bincount(flat, weights=m2, minlength=n),
+            "n": stats[:, 4].astype(np.float64),
         }
         if with_colour:
-            sums["r"] = np.bincount(flat, weights=self.masks.r.ravel(), minlength=n)
-            sums["g"] = np.bincount(flat, weights=self.masks.g.ravel(), minlength=n)
+            sums["r"] = np.bincount(flat, weights=self.masks.r.ravel()[on], minlength=n)
+            sums["g"] = np.bincount(flat, weights=self.masks.g.ravel()[on], minlength=n)
         return labels, stats, sums
 
     def _node(
@@ -348,6 +362,11 @@ class _Frame:
         if not lo <= shape.long_m <= hi:
             self.det._reject("skin extent")
             return False
+        if shape.short_px < MIN_RESOLVED_PX:
+            # A hand at 2-3 m is 2-3 rows tall: every blob that thin is "solid" and
+            # "rectangular". Colour, floor size and extent are all that can be judged;
+            # the shape is judged when the rover comes nearer.
+            return True
         if shape.solidity < self.p.min_skin_solidity:
             self.det._reject("skin fragmented")
             return False

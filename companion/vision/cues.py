@@ -116,10 +116,14 @@ def region_is_skin(mean_r: float, mean_g: float, params: ColourParams, bg: Backg
 
 
 def skin_pixels(
-    image_bgr: np.ndarray, params: ColourParams, bg: Background
+    image_bgr: np.ndarray,
+    params: ColourParams,
+    bg: Background,
+    planes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(skin bool mask, r, g, lit) for an image or a crop, given the background."""
-    r, g, s = chromaticity(image_bgr)
+    """(skin bool mask, r, g, lit) for an image or a crop, given the background
+    (``planes``: its chromaticity() when already computed)."""
+    r, g, s = chromaticity(image_bgr) if planes is None else planes
     lit = s >= params.min_intensity
     margin = max(params.skin_from_background, params.background_spread_k * bg.sigma)
     off_bg = (r - bg.r) ** 2 + (g - bg.g) ** 2 > margin**2
@@ -139,7 +143,8 @@ def colour_masks(
     is what holds from full light to a dark zone); by default the image's own.
     ``far_rows`` flags rows where a hand is one or two rows tall (grid.py).
     """
-    r, g, _ = chromaticity(image_bgr)
+    planes = chromaticity(image_bgr)
+    r, g, _ = planes
     # The background's chromaticity: the median of a subsample (the floor dominates).
     r_sub, g_sub = r[::4, ::4], g[::4, ::4]
     bg_r, bg_g = float(np.median(r_sub)), float(np.median(g_sub))
@@ -147,7 +152,7 @@ def colour_masks(
         float(np.median(np.abs(r_sub - bg_r))), float(np.median(np.abs(g_sub - bg_g)))
     )
     bg = Background(bg_r, bg_g, sigma)
-    skin, r, g, lit = skin_pixels(image_bgr, params, bg)
+    skin, r, g, lit = skin_pixels(image_bgr, params, bg, planes)
     sat = np.sqrt((r - GREY_R) ** 2 + (g - GREY_G) ** 2)
     bg_sat = math.hypot(bg_r - GREY_R, bg_g - GREY_G)
     cloth = (
@@ -308,6 +313,7 @@ class FloorShape:
     corners: int  # vertices of the polygon approximation
     border_share: float  # share of the outline on the frame border
     long_px: float  # the outline's longest side in the image it was traced in
+    short_px: float  # ... and its shortest
 
 
 def floor_shape(
@@ -334,6 +340,7 @@ def floor_shape(
     perimeter = float(steps.sum())
     straight_share, corners = _straightness(outline_px[ok].astype(np.float32), border)
     border_len = float(steps[border].sum())
+    side_px = cv2.minAreaRect(outline_px.astype(np.float32))[1]
     return FloorShape(
         area_m2=area,
         long_m=float(max(w, h)),
@@ -343,7 +350,8 @@ def floor_shape(
         straight_share=straight_share,
         corners=corners,
         border_share=border_len / perimeter if perimeter > 0 else 0.0,
-        long_px=float(max(cv2.minAreaRect(outline_px.astype(np.float32))[1])),
+        long_px=float(max(side_px)),
+        short_px=float(min(side_px)),
     )
 
 
@@ -393,7 +401,8 @@ def floor_looks_man_made(
         return False  # too few pixels to tell straight edges from curves
     if s.long_m >= 3.0 * s.short_m and s.straight_share > 0.6 and s.rect_fill > 0.7:
         return True  # a plank or beam: long, thin, straight parallel sides
-    if not strict:
+    if not strict or s.short_px < MIN_OUTLINE_PX / 3:
+        # A flat ellipse a few rows tall has nearly straight long sides in pixels.
         return False
     if s.straight_share > 0.8 and s.solidity > 0.9:
         return True  # a convex polygon with long straight edges (slab, piece, triangle)

@@ -106,10 +106,9 @@ def floor_grid(frame_w: int, frame_h: int, geometry: FrameGeometry, p: GridParam
     work_w = min(frame_w, p.work_width_px)
     sx = frame_w / work_w
     v = np.arange(frame_h + 1, dtype=np.float64)
-    spans = []
-    for c in _PROBE_COLUMNS:
-        pts = geometry.floor_ne_m(np.column_stack([np.full(len(v), c * (frame_w - 1)), v]))
-        spans.append(np.linalg.norm(np.diff(pts, axis=0), axis=1))
+    probes = [np.column_stack([np.full(len(v), c * (frame_w - 1)), v]) for c in _PROBE_COLUMNS]
+    pts = geometry.floor_ne_m(np.vstack(probes)).reshape(len(probes), len(v), 2)
+    spans = [np.linalg.norm(np.diff(p, axis=0), axis=1) for p in pts]
     # Per frame row: the floor one row spans (NaN off the floor at every probe).
     with np.errstate(all="ignore"):
         span = np.fmin.reduce(np.vstack(spans), axis=0)
