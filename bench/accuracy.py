@@ -1,0 +1,376 @@
+"""Accuracy over the scenario suite: recall, false victims, localisation, urgency, duplicates
+
+Each scenario (the seven presets of ``scenarios`` and the generated mixed worlds of
+seeds 1 and 2) is recorded with ``scenarios.record.record`` (fixed world seed and
+start time, the whole lawnmower route, 5 frames/s at 640x480), replayed in-process
+through ``companion.replay.replay`` with the recorded camera.toml as the whole
+configuration (every other key at its default), and scored with
+``scenarios.score.score`` (Hungarian matching, 1 m gate). Per scenario: recall,
+false victims, duplicate IDs, localisation error median/p95/max, urgency accuracy,
+time from the first frame a victim is in view to its first report; "total" pools
+every match of the suite. The figures are stored in ``bench/accuracy_baseline.json``
+(the regression file; its "guard" entries, two short missions, are what
+tests/test_accuracy_regression.py re-measures and compares on every ``make test``).
+Re-measure it deliberately, after a change that is meant to move the figures, with
+``python -m bench.accuracy --update-baseline``; nothing rewrites it automatically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as dt
+import json
+import logging
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.config import load_config
+from companion.replay import replay, result_document
+from scenarios.record import record
+from scenarios.score import ScoreResult, load_truth, report_from_dict, score
+from scenarios.world import PRESETS, World, generate_world, preset
+
+log = logging.getLogger(__name__)
+
+BASELINE = Path(__file__).resolve().parent / "accuracy_baseline.json"
+BASELINE_FORMAT = "rescue-bench-accuracy/1"
+START_UNIX_S = 1_700_000_000.0  # simulation time 0 of every mission (a fixed clock)
+SUITE_FPS = 5.0
+GATE_M = 1.0
+
+# How much worse than the baseline a guard scenario may measure before the test fails.
+# Recorded missions are deterministic on one machine; these allow for another CPU's
+# OpenCV/NumPy arithmetic moving a detection by a few pixels (a few cm on the floor
+# at 2-4 m range), and nothing more. A body is ~0.4 m wide and the match gate is 1 m,
+# so a 0.10 m rise of the median error is already a real loss of precision.
+TOLERANCE = {
+    "matched": 0,  # true victims found: may not drop (one victim fewer is a regression)
+    "urgency_correct": 0,  # matched victims of the right class: may not drop
+    "false_victims": 0,  # may not rise
+    "duplicates": 0,  # may not rise
+    "error_median_m": 0.10,  # may rise by at most this
+    "error_max_m": 0.15,  # may rise by at most this (p95 is checked the same way)
+    "time_to_report_max_s": 2.0,  # 10 frames at 5 frames/s
+}
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One recorded mission: a world, how long and at what frame rate."""
+
+    key: str  # name in the figures and the baseline file
+    world: str  # "preset:<name>" or "seed:<int>"
+    duration_s: float | None = None  # None: the whole route (its duration + 2 s)
+    fps: float = SUITE_FPS
+
+    def make_world(self) -> World:
+        kind, _, arg = self.world.partition(":")
+        if kind == "preset" and arg in PRESETS:
+            return preset(arg)
+        if kind == "seed":
+            return generate_world(int(arg))
+        raise ValueError(f"scenario {self.key}: world {self.world!r} is not preset:NAME or seed:N")
+
+    def settings(self) -> dict[str, Any]:
+        return {**dataclasses.asdict(self), "start_unix_s": START_UNIX_S, "gate_m": GATE_M}
+
+
+# The whole route (about 162 s at 0.4 m/s) covers the floor: every victim is passed
+# and the no-victim worlds are searched end to end for false victims.
+SUITE: tuple[Scenario, ...] = (
+    *(Scenario(name, f"preset:{name}") for name in PRESETS),
+    Scenario("seed1", "seed:1"),
+    Scenario("seed2", "seed:2"),
+)
+# The test's subset: the start of two routes, long enough that every victim of these
+# worlds is in view and reported (code 06dadf5 at 5 frames/s: "mixed" victims first
+# in view at 0.1/29.1/33.3 s, reported at 45.1/83.3/75.7 s; seed 2: first in view at
+# 5.1/29.1/38.3 s, reported at 4.5/35.1/68.1 s), so a victim lost, a class wrong or a
+# position moved shows. About 45 s for both on this machine.
+GUARD: tuple[Scenario, ...] = (
+    Scenario("guard_mixed", "preset:mixed", duration_s=90.0),
+    Scenario("guard_seed2", "seed:2", duration_s=75.0),
+)
+SECTIONS = {"suite": SUITE, "guard": GUARD}
+
+
+def _r(x: float | None, digits: int = 3) -> float | None:
+    return None if x is None else round(float(x), digits)
+
+
+def figures(result: ScoreResult) -> dict[str, Any]:
+    """The figures of one scored mission (JSON-ready, rounded)."""
+    ttr = result.time_to_report_s
+    return {
+        "true_victims": result.true_victims,
+        "reported": result.reported,
+        "matched": len(result.matches),
+        "recall": _r(result.recall),
+        "missed_ids": list(result.missed_ids),
+        "false_victims": result.false_victims,
+        "duplicates": result.duplicate_count,
+        "error_median_m": _r(result.error_median_m),
+        "error_p95_m": _r(result.error_p95_m),
+        "error_max_m": _r(result.error_max_m),
+        "urgency_correct": sum(m.urgency_ok for m in result.matches),
+        "urgency_accuracy": _r(result.urgency_accuracy),
+        "time_to_report_median_s": _r(float(np.median(ttr)) if ttr else None, 2),
+        "time_to_report_max_s": _r(max(ttr) if ttr else None, 2),
+    }
+
+
+def totals(results: Sequence[ScoreResult]) -> dict[str, Any]:
+    """Every match of the suite pooled (errors and delays over all matched victims)."""
+    matches = [m for r in results for m in r.matches]
+    errors = np.array([m.error_m for m in matches], float)
+    ttr = [m.time_to_report_s for m in matches if m.time_to_report_s is not None]
+    true_victims = sum(r.true_victims for r in results)
+    return {
+        "scenarios": len(results),
+        "true_victims": true_victims,
+        "reported": sum(r.reported for r in results),
+        "matched": len(matches),
+        "recall": _r(len(matches) / true_victims) if true_victims else None,
+        "false_victims": sum(r.false_victims for r in results),
+        "duplicates": sum(r.duplicate_count for r in results),
+        "error_median_m": _r(float(np.median(errors))) if errors.size else None,
+        "error_p95_m": _r(float(np.percentile(errors, 95))) if errors.size else None,
+        "error_max_m": _r(float(errors.max())) if errors.size else None,
+        "urgency_correct": sum(m.urgency_ok for m in matches),
+        "urgency_accuracy": _r(sum(m.urgency_ok for m in matches) / len(matches))
+        if matches
+        else None,
+        "time_to_report_median_s": _r(float(np.median(ttr)), 2) if ttr else None,
+        "time_to_report_max_s": _r(max(ttr), 2) if ttr else None,
+    }
+
+
+def measure_one(scenario: Scenario, work_dir: Path) -> tuple[dict[str, Any], ScoreResult]:
+    """Record, replay and score one scenario in ``work_dir``; (figures, score)."""
+    start = time.perf_counter()
+    rec = record(
+        scenario.make_world(),
+        work_dir,
+        duration_s=scenario.duration_s,
+        fps=scenario.fps,
+        start_unix_s=START_UNIX_S,
+    )
+    recorded = time.perf_counter()
+    config = load_config(work_dir / "camera.toml")
+    result = replay(config, work_dir / "mission.tlog", work_dir / "frames")
+    replayed = time.perf_counter()
+    reported = report_from_dict(result_document(result), work_dir / "replay.json")
+    scored = score(load_truth(work_dir / "ground_truth.json"), reported, gate_m=GATE_M)
+    out = figures(scored)
+    out.update(
+        frames=rec.frames,
+        duration_s=round(rec.duration_s, 1),
+        record_s=round(recorded - start, 1),
+        replay_s=round(replayed - recorded, 1),
+    )
+    return out, scored
+
+
+def measure(scenarios: Sequence[Scenario]) -> dict[str, Any]:
+    """Figures of each scenario, their totals and the settings they were measured with."""
+    per: dict[str, Any] = {}
+    scores: list[ScoreResult] = []
+    start = time.perf_counter()
+    for scenario in scenarios:
+        with tempfile.TemporaryDirectory(prefix=f"acc-{scenario.key}-") as tmp:
+            log.info("accuracy: %s (%s)", scenario.key, scenario.world)
+            per[scenario.key], scored = measure_one(scenario, Path(tmp))
+        scores.append(scored)
+    return {
+        "settings": {s.key: s.settings() for s in scenarios},
+        "scenarios": per,
+        "total": totals(scores),
+        "runtime_s": round(time.perf_counter() - start, 1),
+    }
+
+
+def run() -> dict[str, Any]:
+    """The suite's figures (``python -m bench`` collects them into BENCHMARKS.md)."""
+    suite = measure(SUITE)
+    keep = (
+        *("true_victims", "matched", "recall", "false_victims", "duplicates"),
+        *("error_median_m", "error_p95_m", "error_max_m", "urgency_accuracy"),
+        *("time_to_report_median_s", "time_to_report_max_s"),
+    )
+    out: dict[str, Any] = {"settings": _settings_line()}
+    for key, fig in suite["scenarios"].items():
+        out[key] = {k: fig[k] for k in keep}
+    out["total"] = suite["total"]
+    out["suite_runtime_s"] = suite["runtime_s"]
+    try:
+        base = load_baseline()
+    except (OSError, ValueError) as exc:
+        out["baseline"] = f"none usable ({exc})"
+        return out
+    m = base["suite"]["measured"]
+    out["baseline"] = f"{BASELINE.name}, measured {m['date']} on code {m['code']}"
+    worse = regressions(suite["scenarios"], base["suite"]["scenarios"])
+    out["worse_than_baseline"] = "; ".join(worse) or "nothing"
+    return out
+
+
+def _settings_line() -> str:
+    return (
+        f"{len(SUITE)} missions, whole route, {SUITE_FPS:g} frames/s 640x480 JPEG, "
+        f"start_unix_s {START_UNIX_S:.0f}, recorded camera.toml as config, gate {GATE_M:g} m"
+    )
+
+
+# -- the regression file -------------------------------------------------------------
+
+
+def regressions(measured: dict[str, Any], baseline: dict[str, Any]) -> list[str]:
+    """What in ``measured`` is worse than ``baseline`` beyond TOLERANCE, one line each.
+
+    Both are per-scenario figure dicts (as ``figures()`` returns). A scenario missing
+    from ``measured`` or a figure that was measured before and is None now counts.
+    """
+    bad = []
+    for key, base in baseline.items():
+        now = measured.get(key)
+        if now is None:
+            bad.append(f"{key}: not measured")
+            continue
+        for name in ("matched", "urgency_correct"):
+            if now[name] < base[name] - TOLERANCE[name]:
+                bad.append(f"{key}: {name} {now[name]} < baseline {base[name]}")
+        for name in ("false_victims", "duplicates"):
+            if now[name] > base[name] + TOLERANCE[name]:
+                bad.append(f"{key}: {name} {now[name]} > baseline {base[name]}")
+        limits = {
+            "error_median_m": TOLERANCE["error_median_m"],
+            "error_p95_m": TOLERANCE["error_max_m"],
+            "error_max_m": TOLERANCE["error_max_m"],
+            "time_to_report_max_s": TOLERANCE["time_to_report_max_s"],
+        }
+        for name, tol in limits.items():
+            if base.get(name) is None:
+                continue
+            if now.get(name) is None or now[name] > base[name] + tol:
+                bad.append(f"{key}: {name} {now.get(name)} > baseline {base[name]} + {tol}")
+    return bad
+
+
+def load_baseline(path: Path = BASELINE) -> dict[str, Any]:
+    data: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    if data.get("format") != BASELINE_FORMAT:
+        raise ValueError(f"{path}: format {data.get('format')!r}, expected {BASELINE_FORMAT!r}")
+    return data
+
+
+def _git_state() -> str:
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=10,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "companion", "fusion", "scenarios"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return f"{head}{' + uncommitted changes in companion/fusion/scenarios' if dirty else ''}"
+
+
+def _machine() -> str:
+    cpu = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("model name", "Model")):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, {platform.system()}, Python {platform.python_version()}"
+
+
+def update_baseline(
+    sections: Sequence[str] = tuple(SECTIONS), path: Path = BASELINE
+) -> dict[str, Any]:
+    """Measure ``sections`` ("suite", "guard") and rewrite them in the regression file,
+    keeping any other section as it was. Only ever called on purpose (the CLI flag)."""
+    try:
+        data = load_baseline(path)
+    except (OSError, ValueError):
+        data = {}
+    data["format"] = BASELINE_FORMAT
+    data["note"] = (
+        "Regression file of bench/accuracy.py; tests/test_accuracy_regression.py re-measures "
+        "the 'guard' scenarios and fails if they score worse. Rewrite only on purpose: "
+        "python -m bench.accuracy --update-baseline [--guard]"
+    )
+    for name in sections:
+        section = measure(SECTIONS[name])
+        section["measured"] = {
+            "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            "machine": _machine(),
+            "code": _git_state(),
+            "settings": _settings_line() if name == "suite" else "the GUARD scenarios",
+        }
+        data[name] = section
+    path.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    return data
+
+
+def _compare(section: str, measured: dict[str, Any]) -> list[str]:
+    try:
+        base = load_baseline()[section]
+    except (OSError, ValueError, KeyError) as exc:
+        return [f"no usable baseline: {exc}"]
+    return regressions(measured["scenarios"], base["scenarios"])
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.accuracy", description=__doc__)
+    parser.add_argument(
+        "--update-baseline", action="store_true", help=f"re-measure and rewrite {BASELINE.name}"
+    )
+    parser.add_argument(
+        "--guard",
+        action="store_true",
+        help="only the test's short guard missions (with --update-baseline: rewrite only them)",
+    )
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if args.update_baseline:
+        data = update_baseline(["guard"] if args.guard else list(SECTIONS))
+        print(json.dumps(data, indent=1))
+        print(f"wrote {BASELINE}")
+        return 0
+    section = "guard" if args.guard else "suite"
+    measured = measure(GUARD if args.guard else SUITE)
+    print(json.dumps(measured, indent=1))
+    worse = _compare(section, measured)
+    for line in worse:
+        print(f"worse than the baseline: {line}")
+    return 1 if worse else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
