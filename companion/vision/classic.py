@@ -73,9 +73,11 @@ class ClassicParams:
     part_gap_m: float = 0.12  # clothing this close to a body's parts belongs to it
     seed_gap_m: float = 1.0  # parts of one body are closer than this on the floor
     photo_width_m: float = 4.0  # without geometry: floor the frame is taken to span
-    # A body cut by the left, right or bottom frame edge has an unknown visible share
-    # (and a centroid pulled to the edge): drop it and wait for a whole view.
+    # A body cut by the left, right or bottom frame edge, or so near the bottom edge
+    # that its unseen rest could lie below it, has an unknown visible share (and a
+    # centroid pulled to the edge): drop it, the views before were whole.
     drop_cut_bodies: bool = True
+    body_reach_m: float = 0.85  # half a body: how far the unseen rest could lie
 
 
 @dataclass
@@ -150,7 +152,7 @@ class ClassicDetector:
         seeds = ctx.skin_seeds()
         if not seeds:
             return []
-        parts = ctx.clothing_parts()
+        parts = ctx.clothing_parts(seeds)
         victims = ctx.bodies(seeds, parts)
         if self.params.drop_cut_bodies:
             kept = [v for v in victims if not ctx.cut_by_frame(v)]
@@ -186,6 +188,7 @@ class _Frame:
         self.u_col, _ = grid.frame_uv(np.arange(grid.work_w), np.zeros(grid.work_w))
         self.area_row, self.row_m = self._floor_per_row()
         self._weights = self._pixel_weights()
+        self._edge: np.ndarray | None = None
 
     # -- per-frame tables ------------------------------------------------------------
 
@@ -410,12 +413,38 @@ class _Frame:
 
     # -- clothing --------------------------------------------------------------------
 
-    def clothing_parts(self) -> list[_Node]:
+    def _reach(self, seeds: list[_Node]) -> list[tuple[int, int, int, int]]:
+        """Working-pixel boxes around each seed that a body through it could cover
+        (``body_extent_max_m`` on the floor each way): clothing outside them cannot
+        join a victim and is not examined."""
+        g = self.grid
+        reach = self.p.body_extent_max_m
+        cum = np.cumsum(np.nan_to_num(self.row_m, nan=1e3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            col_m = self.area_row / self.row_m
+        boxes = []
+        for n in seeds:
+            y = min(g.work_h - 1, (n.y0 + n.y1) // 2)
+            rows = np.flatnonzero(np.abs(cum - cum[y]) <= reach)
+            cm = float(col_m[y]) if math.isfinite(col_m[y]) and col_m[y] > 0 else 0.0
+            dx = g.work_w if cm == 0.0 else math.ceil(reach / cm)
+            y0 = int(rows[0]) if len(rows) else n.y0
+            y1 = int(rows[-1]) + 1 if len(rows) else n.y1
+            boxes.append((n.x0 - dx, min(y0, n.y0), n.x1 + dx, max(y1, n.y1)))
+        return boxes
+
+    def clothing_parts(self, seeds: list[_Node]) -> list[_Node]:
         labels, stats, sums = self._components(self.masks.cloth)
         self.cloth_labels = labels
+        boxes = self._reach(seeds)
         parts = []
         for i in range(1, len(stats)):
             if stats[i][4] < _MIN_REGION_WORK_PX:
+                continue
+            x, y, w, h = (int(v) for v in stats[i][:4])
+            if not any(
+                x < bx1 and x + w > bx0 and y < by1 and y + h > by0 for bx0, by0, bx1, by1 in boxes
+            ):
                 continue
             area = float(sums["m2"][i])
             if not math.isfinite(area) or area > self.p.part_area_max_m2:
@@ -424,6 +453,9 @@ class _Frame:
             if made is None:
                 continue
             node, floor, border, outline = made
+            if max(w, h) < MIN_OUTLINE_PX / 3:  # a few pixels: no shape to judge
+                parts.append(node)
+                continue
             shape = floor_shape(floor, border, outline)
             if shape is None:
                 continue
@@ -488,9 +520,30 @@ class _Frame:
         return clusters
 
     def cut_by_frame(self, n: _Node) -> bool:
-        """The node's pixels touch the left, right or bottom edge of the frame."""
+        """The node touches the left, right or bottom edge of the frame, or a whole body
+        lying around it could reach under the bottom edge (within ``body_reach_m`` on
+        the floor of its centroid): the rover is about to pass it, and the close view
+        shows a head or a hand of a body whose rest is out of the frame. (Beside the
+        left and right edges a hand may be all the route ever shows: kept.)"""
         g = self.grid
-        return n.x0 <= 0 or n.x1 >= g.work_w or (n.y1 >= g.work_h and g.row_v[-1] >= g.frame_h - 4)
+        if n.x0 <= 0 or n.x1 >= g.work_w or (n.y1 >= g.work_h and g.row_v[-1] >= g.frame_h - 4):
+            return True
+        centre = self.geometry.floor_ne_m(np.array([[n.su / n.frame_px, n.sv / n.frame_px]]))
+        edge = self._edge_floor()
+        if not np.isfinite(centre).all() or len(edge) == 0:
+            return False
+        d = np.sqrt(((edge - centre) ** 2).sum(axis=1)).min()
+        return bool(d < self.p.body_reach_m)
+
+    def _edge_floor(self) -> np.ndarray:
+        """Floor points of the frame's bottom edge (cached)."""
+        if self._edge is None:
+            g = self.grid
+            u = np.linspace(0, g.frame_w - 1, 32)
+            px = np.column_stack([u, np.full_like(u, g.frame_h - 1)])
+            f = self.geometry.floor_ne_m(px)
+            self._edge = f[np.isfinite(f).all(axis=1)]
+        return self._edge
 
     def detection(self, n: _Node, t_mono_s: float) -> Detection:
         u, v = n.su / n.frame_px, n.sv / n.frame_px
