@@ -84,8 +84,10 @@ def draw_mission_map(
             1,
             cv2.LINE_AA,
         )
-    for n, e in truth_ne_m:
-        cv2.drawMarker(img, px(n, e), (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA)
+    for true_n, true_e in truth_ne_m:
+        cv2.drawMarker(
+            img, px(true_n, true_e), (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA
+        )
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
     cv2.putText(img, "1 m", (20, img.shape[0] - 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
