@@ -37,28 +37,34 @@ from dataclasses import dataclass, field
 from fusion.pose import PoseHistory
 from fusion.types import GlobalOrigin, PoseSample
 from mavlink_io import tunnel
-from mavlink_io.clock import BootClock
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID
 from mavlink_io.errors import LinkError, LinkTimeout
 from mavlink_io.link import Link
-from mavlink_io.telemetry import OriginTracker, PoseAssembler
+from mavlink_io.telemetry import AUTOPILOT_COMPONENT, TelemetryDecoder, is_autopilot_heartbeat
 from mavlink_io.tlog import TlogWriter
 
 log = logging.getLogger(__name__)
 
-MAV_TYPE_GCS = 6
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_RESULT_ACCEPTED = 0
-AUTOPILOT_COMPONENT = 1
 MSG_ATTITUDE = 30
 MSG_LOCAL_POSITION_NED = 32
 MSG_GLOBAL_POSITION_INT = 33
 MSG_GPS_GLOBAL_ORIGIN = 49
 MSG_HOME_POSITION = 242
+_TELEMETRY_IDS = frozenset(
+    {
+        MSG_ATTITUDE,
+        MSG_LOCAL_POSITION_NED,
+        MSG_GLOBAL_POSITION_INT,
+        MSG_GPS_GLOBAL_ORIGIN,
+        MSG_HOME_POSITION,
+    }
+)
 # REQUEST_DATA_STREAM groups (MAV_DATA_STREAM): EXTRA1 carries ATTITUDE, POSITION
 # carries LOCAL_POSITION_NED and GLOBAL_POSITION_INT on ArduPilot.
 MAV_DATA_STREAM_POSITION = 6
@@ -140,11 +146,11 @@ class VehicleLink:
         self.link = link
         self.codec = codec or Codec(s.system_id or 1, s.component_id)
         self.poses = pose_history or PoseHistory(s.pose_history_s)
-        self.clock = BootClock()
-        self.origins = OriginTracker()
+        self.telemetry = TelemetryDecoder()
+        self.clock = self.telemetry.clock
+        self.origins = self.telemetry.origins
         self.inbox: queue.Queue[MavMessage] = queue.Queue(_INBOX_MAX)
         self.counters = VehicleCounters()
-        self._assembler = PoseAssembler(self.clock)
         self._health = health
         self._tlog = tlog
         self._on_dialect = on_dialect
@@ -318,34 +324,21 @@ class VehicleLink:
             return
         if (msg.get_srcSystem(), msg.get_srcComponent()) != (self._sysid, AUTOPILOT_COMPONENT):
             return
-        if msg_id == MSG_ATTITUDE:
-            self._observe_clock(msg.time_boot_ms, now)
-            self._add_pose(self._assembler.on_attitude(msg))
-        elif msg_id == MSG_LOCAL_POSITION_NED:
-            self._observe_clock(msg.time_boot_ms, now)
-            self._add_pose(self._assembler.on_local_position(msg))
-            self.origins.on_local_position(self._assembler.latest_position)
-        elif msg_id == MSG_GLOBAL_POSITION_INT:
-            self.origins.on_global_position(msg)
-        elif msg_id == MSG_GPS_GLOBAL_ORIGIN:
-            if self.origins.on_gps_global_origin(msg):
+        if msg_id in _TELEMETRY_IDS:
+            update = self.telemetry.handle(msg, now)
+            if update.rebooted:
+                self.counters.reboots += 1
+                log.warning("%s: autopilot rebooted (boot time went backwards)", self.link.name)
+                self.poses.clear()
+                self._request_streams(now, fresh=True)
+            self._add_pose(update.pose)
+            if update.origin_changed:
                 log.info("EKF origin: %s", self.origins.origin)
-        elif msg_id == MSG_HOME_POSITION:
-            self.origins.on_home_position(msg)
         elif msg.get_type() == "COMMAND_ACK" and msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:
             self._on_interval_ack(msg)
 
-    def _is_autopilot_heartbeat(self, msg: MavMessage) -> bool:
-        if msg.get_srcComponent() != AUTOPILOT_COMPONENT:
-            return False
-        if msg.type in (MAV_TYPE_GCS, MAV_TYPE_ONBOARD_CONTROLLER):
-            return False
-        if msg.autopilot == MAV_AUTOPILOT_INVALID:
-            return False
-        return self.settings.system_id in (0, msg.get_srcSystem())
-
     def _on_heartbeat(self, msg: MavMessage, now: float) -> None:
-        if not self._is_autopilot_heartbeat(msg):
+        if not is_autopilot_heartbeat(msg, self.settings.system_id):
             return
         sysid = msg.get_srcSystem()
         if self._sysid not in (0, sysid):
@@ -358,15 +351,6 @@ class VehicleLink:
         if not self._connected.is_set():
             log.info("%s: autopilot heartbeat heard", self.link.name)
             self._connected.set()
-            self._request_streams(now, fresh=True)
-
-    def _observe_clock(self, time_boot_ms: int, now: float) -> None:
-        if self.clock.observe(time_boot_ms / 1000.0, now):
-            self.counters.reboots += 1
-            log.warning("%s: autopilot rebooted (boot time went backwards)", self.link.name)
-            self.poses.clear()
-            self._assembler.reset()
-            self.origins.reset()
             self._request_streams(now, fresh=True)
 
     def _add_pose(self, sample: PoseSample | None) -> None:
