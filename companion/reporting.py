@@ -95,13 +95,12 @@ class ReportPolicy:
             victim, last.north_m, last.east_m, self.move_threshold_sigma
         )
 
-    def requested(self, victims: Iterable[Victim], now_unix_s: float) -> list[Decision]:
-        """Reports the HQ asked for (RESEND): every victim already reported."""
-        out = [
-            Decision(v, FLAG_REQUESTED, announce=False)
-            for v in victims
-            if v.victim_id in self.reported
-        ]
+    def requested(
+        self, victims: Iterable[Victim], now_unix_s: float, flags: int = FLAG_REQUESTED
+    ) -> list[Decision]:
+        """Reports of every victim already reported: on request from the HQ (RESEND),
+        or with ``flags=0`` when there is more to say (the origin became known)."""
+        out = [Decision(v, flags, announce=False) for v in victims if v.victim_id in self.reported]
         for d in out:
             self._record(d.victim, now_unix_s)
         return out

@@ -42,7 +42,7 @@ from companion.sources import (
 from companion.store import Store
 from companion.vision import make_detector
 from fusion.tracker import VictimTracker
-from fusion.types import TrackState
+from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import convert, dialect, statustext
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.hqlink import HqLink
@@ -147,6 +147,7 @@ class Service:
         self._processed: deque[float] = deque(maxlen=100)  # monotonic times of processed frames
         self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
         self._floor_down_m = config.geolocation.floor_down_m
+        self._origin: GlobalOrigin | None = None  # the origin reports were last made with
         self.outbox = Outbox(
             self._send_dialect,
             store=self.store,
@@ -355,6 +356,7 @@ class Service:
                 self.stop.wait()
                 return
             self._handle_actions()
+            self._check_origin()
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
             except CameraTimeout:
@@ -375,6 +377,18 @@ class Service:
             if watchdog_s is not None and now >= next_ping:
                 self.notifier.watchdog()
                 next_ping = now + watchdog_s
+
+    def _check_origin(self) -> None:
+        """Victims reported before the EKF origin was known (or under another origin)
+        are reported again, now with latitude, longitude and a map marker."""
+        origin = self.vehicle.origin
+        if origin is None or origin == self._origin:
+            return
+        self._origin = origin
+        decisions = self.policy.requested(self.tracker.victims(), time.time(), flags=0)
+        if decisions:
+            log.info("EKF origin known: reporting %d victims again with lat/lon", len(decisions))
+            self._commit(decisions)
 
     def _after_frame(self, outcome: FrameOutcome) -> None:
         if outcome.pose is not None:

@@ -108,3 +108,11 @@ def test_restart_reannounces_nothing() -> None:
 def test_malformed_saved_state_is_named(bad: object) -> None:
     with pytest.raises(ValueError, match="reported-state"):
         _policy().restore(bad)
+
+
+def test_every_reported_victim_again_when_the_origin_becomes_known() -> None:
+    p = _policy()
+    seen, unreported = _victim(), _victim(victim_id=2)
+    p.decide([TrackEvent(EventKind.CONFIRMED, seen)], [seen], 100.0)
+    (d,) = p.requested([seen, unreported], 101.0, flags=0)
+    assert d.victim.victim_id == 1 and d.flags == 0 and not d.announce
