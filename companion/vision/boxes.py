@@ -10,6 +10,11 @@ Boxes whose contact pixel is off the usable floor of the FrameGeometry are dropp
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
 from companion.vision.base import FrameGeometry
 from fusion.types import Detection
 
@@ -46,3 +51,27 @@ def box_detection(
         score=min(1.0, max(0.0, score)),
         source=source,
     )
+
+
+def nms_detections(
+    boxes_xywh: Sequence[Sequence[float]],
+    scores: Sequence[float] | np.ndarray,
+    min_score: float,
+    nms_iou: float,
+    frame_size: tuple[int, int],
+    t_mono_s: float,
+    source: str,
+    fill_ratio: float,
+    geometry: FrameGeometry | None,
+) -> list[Detection]:
+    """Non-maximum suppression (cv2.dnn.NMSBoxes), then one Detection per kept box."""
+    boxes = [(float(b[0]), float(b[1]), float(b[2]), float(b[3])) for b in boxes_xywh]
+    keep = cv2.dnn.NMSBoxes(boxes, [float(sc) for sc in scores], min_score, nms_iou)
+    out = []
+    for i in np.asarray(keep, dtype=int).ravel():
+        det = box_detection(
+            boxes[i], float(scores[i]), frame_size, t_mono_s, source, fill_ratio, geometry
+        )
+        if det is not None:
+            out.append(det)
+    return out

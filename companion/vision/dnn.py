@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from companion.vision.base import DetectorUnavailable, FrameGeometry, VisionError
-from companion.vision.boxes import box_detection
+from companion.vision.boxes import nms_detections
 from companion.vision.enhance import Enhancer
 from fusion.types import Detection
 
@@ -148,24 +148,14 @@ class DnnDetector:
         if len(scores) == 0:
             return []
         boxes = lb.to_frame(centre[:, 0], centre[:, 1], centre[:, 2], centre[:, 3])
-        keep = cv2.dnn.NMSBoxes(
-            [tuple(float(v) for v in b) for b in boxes],
-            [float(s) for s in scores],
+        return nms_detections(
+            [tuple(b) for b in boxes],
+            scores,
             self.min_score,
             self.nms_iou,
+            (w, h),
+            t_mono_s,
+            self.name,
+            self.fill_ratio,
+            geometry,
         )
-        out = []
-        for i in np.asarray(keep, dtype=int).ravel():
-            x, y, bw, bh = (float(v) for v in boxes[i])
-            det = box_detection(
-                (x, y, bw, bh),
-                float(scores[i]),
-                (w, h),
-                t_mono_s,
-                self.name,
-                self.fill_ratio,
-                geometry,
-            )
-            if det is not None:
-                out.append(det)
-        return out

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from companion.vision.base import DetectorUnavailable, FrameGeometry
-from companion.vision.boxes import box_detection
+from companion.vision.boxes import nms_detections
 from companion.vision.enhance import Enhancer
 from fusion.types import Detection
 
@@ -59,19 +59,14 @@ class HogDetector:
             return []
         scores = [1.0 / (1.0 + math.exp(-2.0 * float(wt))) for wt in np.ravel(weights)]
         boxes = [tuple(int(v) for v in r) for r in rects]
-        keep = cv2.dnn.NMSBoxes(boxes, scores, self.min_score, self.nms_iou)
-        out = []
-        for i in np.asarray(keep, dtype=int).ravel():
-            x, y, bw, bh = boxes[i]
-            det = box_detection(
-                (float(x), float(y), float(bw), float(bh)),
-                scores[i],
-                (w, h),
-                t_mono_s,
-                self.name,
-                self.fill_ratio,
-                geometry,
-            )
-            if det is not None:
-                out.append(det)
-        return out
+        return nms_detections(
+            boxes,
+            scores,
+            self.min_score,
+            self.nms_iou,
+            (w, h),
+            t_mono_s,
+            self.name,
+            self.fill_ratio,
+            geometry,
+        )
