@@ -50,6 +50,7 @@ MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
 MAV_RESULT_ACCEPTED = 0
 MSG_ATTITUDE = 30
 MSG_LOCAL_POSITION_NED = 32
@@ -407,6 +408,8 @@ class VehicleLink:
     def _request_streams(self, now: float, fresh: bool) -> None:
         if fresh:
             self._request_attempts = 0
+            if self.origins.origin is None:
+                self._request_origin_once()
             with self._lock:
                 if self._stream_method == "data_stream":
                     self._send_data_stream_requests()
@@ -434,6 +437,30 @@ class VehicleLink:
             )
         self._request_attempts += 1
         self._request_sent_s = now
+
+    def _request_origin_once(self) -> None:
+        """Ask for the EKF origin now: its slow stream (origin_rate_hz) may take seconds.
+
+        Victims confirmed before the origin is known go out without lat/lon and get
+        no map marker until it arrives, so the first seconds after connecting matter.
+        """
+        m = self.codec.module
+        for msg_id in (MSG_GPS_GLOBAL_ORIGIN, MSG_HOME_POSITION):
+            self.send(
+                m.MAVLink_command_long_message(
+                    self._sysid,
+                    AUTOPILOT_COMPONENT,
+                    MAV_CMD_REQUEST_MESSAGE,
+                    0,
+                    float(msg_id),
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                )
+            )
 
     def _on_interval_ack(self, msg: MavMessage) -> None:
         if self._request_sent_s is None and self._stream_method:

@@ -110,8 +110,12 @@ def test_identity_heartbeat_streams_pose_and_origin(
     assert (hb.get_srcSystem(), hb.get_srcComponent()) == (SYSID, 191)
     assert hb.type == 18 and hb.autopilot == 8 and hb.system_status == 4
     for msg_id in (30, 32, 33, 49, 242):
-        cmd = ap.wait_for("COMMAND_LONG", 3.0, lambda m, i=msg_id: int(m.param1) == i)
-        assert cmd.command == 511 and (cmd.target_system, cmd.target_component) == (SYSID, 1)
+        cmd = ap.wait_for(
+            "COMMAND_LONG", 3.0, lambda m, i=msg_id: m.command == 511 and int(m.param1) == i
+        )
+        assert (cmd.target_system, cmd.target_component) == (SYSID, 1)
+    # The origin is also asked for at once, not only in its slow stream.
+    ap.wait_for("COMMAND_LONG", 3.0, lambda m: m.command == 512 and int(m.param1) == 49)
     state = vehicle.wait_for_state(
         lambda s: s.origin is not None and s.counters["poses"] >= 10, timeout_s=3.0
     )
