@@ -31,8 +31,9 @@ FLAG_NEW = 2
 
 
 @pytest.fixture
-def sim() -> Iterator[LiveSim]:
-    with LiveSim(preset("light"), patrol_first_victim=True, speed_m_s=0.25) as live:
+def sim(request: pytest.FixtureRequest) -> Iterator[LiveSim]:
+    speed_m_s = getattr(request, "param", 0.25)  # parametrize indirectly to change it
+    with LiveSim(preset("light"), patrol_first_victim=True, speed_m_s=speed_m_s) as live:
         yield live
 
 
@@ -109,6 +110,10 @@ def _heartbeats(ground: GroundPeer, since_s: float) -> list[object]:
     ]
 
 
+# At 0.7 s a frame the rover must drive slowly for the victim to be in enough
+# processed frames of one pass to be confirmed (at 0.25 m/s a pass gave ~7 frames
+# in the detector's range and was sometimes missed, twice in a row once).
+@pytest.mark.parametrize("sim", [0.12], indirect=True)
 def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
     tmp_path: Path, sim: LiveSim, ground: GroundPeer
 ) -> None:
@@ -152,8 +157,12 @@ def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
     # offline replay of the service's own tlog and frames finds the victim again.
     (tlog,) = (tmp_path / "state" / "tlogs").glob("*.tlog")
     (frames,) = (tmp_path / "state" / "frames").iterdir()
+    stamps_s = sorted(int(f.stem) / 1e6 for f in frames.iterdir())
+    # The camera runs at 10 fps; processing managed under 2: the recording kept up.
+    assert len(stamps_s) >= 0.8 * 10.0 * (stamps_s[-1] - stamps_s[0]) and len(stamps_s) >= 30
     doc = result_document(replay(load_config(cfg), tlog, frames))
-    assert doc["frames"] >= 100 and doc["frames_without_pose"] <= 0.1 * doc["frames"]
+    # Frames before the first pose arrived have none: a second or so of a short run.
+    assert doc["frames"] == len(stamps_s) and doc["frames_without_pose"] < 0.5 * doc["frames"]
     assert doc["victims"], "the replay of the recording found no victim"
 
 
