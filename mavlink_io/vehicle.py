@@ -415,25 +415,12 @@ class VehicleLink:
                     self._send_data_stream_requests()
                     return
                 self._stream_method = ""
-        m = self.codec.module
         confirmation = min(self._request_attempts, 255)  # 0 first, then 1, 2 on retries
         self.counters.stream_requests += 1  # before sending: a peer may answer at once
         for msg_id, rate_hz in self._stream_rates():
             interval_us = round(1e6 / rate_hz) if rate_hz > 0 else -1  # -1: stop it
-            self.send(
-                m.MAVLink_command_long_message(
-                    self._sysid,
-                    AUTOPILOT_COMPONENT,
-                    MAV_CMD_SET_MESSAGE_INTERVAL,
-                    confirmation,
-                    float(msg_id),
-                    float(interval_us),
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                )
+            self._command(
+                MAV_CMD_SET_MESSAGE_INTERVAL, confirmation, float(msg_id), float(interval_us)
             )
         self._request_attempts += 1
         self._request_sent_s = now
@@ -444,23 +431,17 @@ class VehicleLink:
         Victims confirmed before the origin is known go out without lat/lon and get
         no map marker until it arrives, so the first seconds after connecting matter.
         """
-        m = self.codec.module
         for msg_id in (MSG_GPS_GLOBAL_ORIGIN, MSG_HOME_POSITION):
-            self.send(
-                m.MAVLink_command_long_message(
-                    self._sysid,
-                    AUTOPILOT_COMPONENT,
-                    MAV_CMD_REQUEST_MESSAGE,
-                    0,
-                    float(msg_id),
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                )
+            self._command(MAV_CMD_REQUEST_MESSAGE, 0, float(msg_id))
+
+    def _command(self, command: int, confirmation: int, *params: float) -> None:
+        """COMMAND_LONG to the autopilot; unused params are 0."""
+        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        self.send(
+            self.codec.module.MAVLink_command_long_message(
+                self._sysid, AUTOPILOT_COMPONENT, command, confirmation, *p
             )
+        )
 
     def _on_interval_ack(self, msg: MavMessage) -> None:
         if self._request_sent_s is None and self._stream_method:
