@@ -38,7 +38,13 @@ import numpy as np
 from companion.config import load_config
 from companion.replay import replay, result_document
 from scenarios.record import record
-from scenarios.score import ScoreResult, load_truth, report_from_dict, score
+from scenarios.score import (
+    ScoreResult,
+    inside_95_ellipse,
+    load_truth,
+    report_from_dict,
+    score,
+)
 from scenarios.world import PRESETS, World, generate_world, preset
 
 log = logging.getLogger(__name__)
@@ -125,6 +131,7 @@ def figures(result: ScoreResult) -> dict[str, Any]:
         "error_max_m": _r(result.error_max_m),
         "urgency_correct": sum(m.urgency_ok for m in result.matches),
         "urgency_accuracy": _r(result.urgency_accuracy),
+        "inside_95_ellipse": _r(result.inside_95_ellipse),
         "time_to_report_median_s": _r(float(np.median(ttr)) if ttr else None, 2),
         "time_to_report_max_s": _r(max(ttr) if ttr else None, 2),
     }
@@ -151,6 +158,7 @@ def totals(results: Sequence[ScoreResult]) -> dict[str, Any]:
         "urgency_accuracy": _r(sum(m.urgency_ok for m in matches) / len(matches))
         if matches
         else None,
+        "inside_95_ellipse": _r(inside_95_ellipse(matches)),
         "time_to_report_median_s": _r(float(np.median(ttr)), 2) if ttr else None,
         "time_to_report_max_s": _r(max(ttr), 2) if ttr else None,
     }
@@ -206,6 +214,7 @@ def run() -> dict[str, Any]:
     keep = (
         *("true_victims", "matched", "recall", "false_victims", "duplicates"),
         *("error_median_m", "error_p95_m", "error_max_m", "urgency_accuracy"),
+        "inside_95_ellipse",
         *("time_to_report_median_s", "time_to_report_max_s"),
     )
     out: dict[str, Any] = {"settings": _settings_line()}

@@ -12,12 +12,16 @@ place is where rescuers dig.
   reported under another ID), counted per true victim;
 - localisation error: median, 95th percentile and max over matched pairs;
 - urgency accuracy: share of matched pairs whose class equals the truth;
+- covariance consistency: for reports that carry ``cov_ne_m2``, the share of matched
+  pairs whose error lies inside the reported 95 % ellipse (squared Mahalanobis
+  distance to the matched point at most 5.99, chi-square with 2 dof); an honest
+  covariance gives about 95 %;
 - time to report: first report (``first_reported_unix_s``, else
   ``first_seen_unix_s``) minus the first frame where the victim was in view.
 
 The report format (``load_report``): {"victims": [{"victim_id", "urgency",
-"north_m", "east_m", "first_seen_unix_s", "first_reported_unix_s"?}, ...]};
-extra keys are ignored.
+"north_m", "east_m", "first_seen_unix_s", "first_reported_unix_s"?, "cov_ne_m2"?},
+...]}; extra keys are ignored.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from scipy.optimize import linear_sum_assignment
 from fusion.types import Urgency
 
 GATE_M = 1.0
+CHI2_95_2DOF = 5.991
 
 
 class ScoreInputError(ValueError):
@@ -65,6 +70,7 @@ class ReportedVictim:
     east_m: float
     first_seen_unix_s: float
     first_reported_unix_s: float | None = None
+    cov_ne_m2: tuple[tuple[float, float], tuple[float, float]] | None = None
 
 
 @dataclass(frozen=True)
@@ -74,6 +80,7 @@ class Match:
     error_m: float
     urgency_ok: bool
     time_to_report_s: float | None
+    mahalanobis2: float | None = None  # error in the reported covariance; None without one
 
 
 @dataclass(frozen=True)
@@ -114,6 +121,10 @@ class ScoreResult:
         return sum(m.urgency_ok for m in self.matches) / len(self.matches)
 
     @property
+    def inside_95_ellipse(self) -> float | None:
+        return inside_95_ellipse(self.matches)
+
+    @property
     def duplicate_count(self) -> int:
         return sum(self.duplicates.values())
 
@@ -136,17 +147,41 @@ class ScoreResult:
             "error_p95_m": self.error_p95_m,
             "error_max_m": self.error_max_m,
             "urgency_accuracy": self.urgency_accuracy,
+            "inside_95_ellipse": self.inside_95_ellipse,
             "time_to_report_median_s": float(np.median(ttr)) if ttr else None,
             "time_to_report_max_s": max(ttr) if ttr else None,
             "matches": [m.__dict__ for m in self.matches],
         }
 
 
-def _distance(t: TrueVictim, north_m: float, east_m: float) -> float:
-    d = math.hypot(t.north_m - north_m, t.east_m - east_m)
+def inside_95_ellipse(matches: Sequence[Match]) -> float | None:
+    """Share of matches (with a covariance) whose error is inside the 95 % ellipse."""
+    d2 = [m.mahalanobis2 for m in matches if m.mahalanobis2 is not None]
+    return sum(x <= CHI2_95_2DOF for x in d2) / len(d2) if d2 else None
+
+
+def _error_ne_m(t: TrueVictim, north_m: float, east_m: float) -> tuple[float, float]:
+    """Report minus the nearer of the body centre and the visible part's centroid."""
+    err = (north_m - t.north_m, east_m - t.east_m)
     if t.visible_north_m is not None and t.visible_east_m is not None:
-        d = min(d, math.hypot(t.visible_north_m - north_m, t.visible_east_m - east_m))
-    return d
+        seen = (north_m - t.visible_north_m, east_m - t.visible_east_m)
+        if math.hypot(*seen) < math.hypot(*err):
+            err = seen
+    return err
+
+
+def _distance(t: TrueVictim, north_m: float, east_m: float) -> float:
+    return math.hypot(*_error_ne_m(t, north_m, east_m))
+
+
+def _mahalanobis2(t: TrueVictim, r: ReportedVictim) -> float | None:
+    if r.cov_ne_m2 is None:
+        return None
+    err = np.array(_error_ne_m(t, r.north_m, r.east_m))
+    try:
+        return float(err @ np.linalg.solve(np.array(r.cov_ne_m2, float), err))
+    except np.linalg.LinAlgError:  # a singular covariance claims certainty: never consistent
+        return math.inf
 
 
 def score(
@@ -172,7 +207,14 @@ def score(
         )
         ttr = None if t.first_in_view_unix_s is None else reported_at - t.first_in_view_unix_s
         matches.append(
-            Match(t.victim_id, r.victim_id, float(cost[i, j]), r.urgency == t.urgency, ttr)
+            Match(
+                t.victim_id,
+                r.victim_id,
+                float(cost[i, j]),
+                r.urgency == t.urgency,
+                ttr,
+                _mahalanobis2(t, r),
+            )
         )
     duplicates: dict[int, int] = {}
     false_victims = 0
@@ -271,8 +313,25 @@ def report_from_dict(data: Any, path: Path = Path("report.json")) -> list[Report
                 first_reported_unix_s=_field(
                     v, "first_reported_unix_s", where, float, optional=True
                 ),
+                cov_ne_m2=_covariance(v, where),
             )
         )
+    return out
+
+
+def _covariance(
+    item: dict[str, Any], where: str
+) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    cov = item.get("cov_ne_m2")
+    if cov is None:
+        return None
+    try:
+        (a, b), (c, d) = cov
+        out = ((float(a), float(b)), (float(c), float(d)))
+    except (TypeError, ValueError):
+        out = None
+    if out is None or not all(math.isfinite(x) for row in out for x in row):
+        raise ScoreInputError(f"{where}.cov_ne_m2 = {cov!r}: expected a finite 2x2 list")
     return out
 
 
@@ -301,6 +360,7 @@ def format_score(result: ScoreResult) -> str:
         + (f" (per true victim {d['duplicates_per_true_victim']})" if result.duplicates else ""),
         f"localisation error median {f(result.error_median_m, ' m')}, p95 {f(result.error_p95_m, ' m')}, max {f(result.error_max_m, ' m')}",
         f"urgency accuracy {'n/a' if result.urgency_accuracy is None else f'{result.urgency_accuracy:.0%}'}",
+        f"errors inside the reported 95% ellipse {'n/a' if result.inside_95_ellipse is None else f'{result.inside_95_ellipse:.0%}'}",
         f"time from first sight to first report: median {f(d['time_to_report_median_s'], ' s', 1)}, max {f(d['time_to_report_max_s'], ' s', 1)}",
     ]
     return "\n".join(lines)

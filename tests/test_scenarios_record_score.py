@@ -169,6 +169,27 @@ def test_hungarian_prefers_the_globally_best_assignment() -> None:
     assert {(m.true_id, m.reported_id) for m in r.matches} == {(1, 2), (2, 1)}
 
 
+def test_inside_95_ellipse_uses_the_reported_covariance() -> None:
+    truth = GroundTruth(
+        (TrueVictim(1, 0.0, 0.0, Urgency.LIGHT), TrueVictim(2, 5.0, 0.0, Urgency.LIGHT))
+    )
+    round_01 = ((0.01, 0.0), (0.0, 0.01))  # sigma 0.1 m
+    long_north = ((0.09, 0.0), (0.0, 0.0025))  # sigma 0.3 m north, 0.05 m east
+    reports = [
+        # 0.2 m north: 4 sigma^2 inside a 0.1 m circle (5.99 is the 95 % bound)...
+        ReportedVictim(1, Urgency.LIGHT, 0.2, 0.0, 0.0, cov_ne_m2=round_01),
+        # ...but 0.2 m east of victim 2 is 16 sigma^2 in an ellipse long to the north.
+        ReportedVictim(2, Urgency.LIGHT, 5.0, 0.2, 0.0, cov_ne_m2=long_north),
+    ]
+    r = score(truth, reports)
+    d2 = {m.true_id: m.mahalanobis2 for m in r.matches}
+    assert d2 == {1: pytest.approx(4.0), 2: pytest.approx(16.0)}
+    assert r.inside_95_ellipse == 0.5
+    # Reports without a covariance give no figure rather than a made-up one.
+    bare = [ReportedVictim(1, Urgency.LIGHT, 0.2, 0.0, 0.0)]
+    assert score(truth, bare).inside_95_ellipse is None
+
+
 def test_empty_world_scores_false_victims_only() -> None:
     r = score(GroundTruth(()), [ReportedVictim(1, Urgency.LIGHT, 1.0, 1.0, 0.0)])
     assert r.recall is None and r.false_victims == 1 and r.urgency_accuracy is None
@@ -192,6 +213,12 @@ def test_bad_report_file_names_the_key(tmp_path: Path) -> None:
         )
     )
     with pytest.raises(ScoreInputError, match=r"victims\[0\]\.urgency = 'SEVERE'"):
+        load_report(path)
+    good = {"victim_id": 1, "urgency": "LIGHT", "north_m": 1, "east_m": 2}
+    path.write_text(
+        json.dumps({"victims": [{**good, "first_seen_unix_s": 0, "cov_ne_m2": [[1, 0], [0]]}]})
+    )
+    with pytest.raises(ScoreInputError, match=r"victims\[0\]\.cov_ne_m2 = .*2x2"):
         load_report(path)
     path.write_text("{not json")
     with pytest.raises(ScoreInputError, match="not valid JSON"):
