@@ -7,7 +7,10 @@ through ``companion.replay.replay`` with the recorded camera.toml as the whole
 configuration (every other key at its default), and scored with
 ``scenarios.score.score`` (Hungarian matching, 1 m gate). Per scenario: recall,
 false victims, duplicate IDs, localisation error median/p95/max, urgency accuracy,
-time from the first frame a victim is in view to its first report; "total" pools
+the share of matched victims whose error lies inside the 95% ellipse of the
+covariance they were reported with (about 0.95 when the reported uncertainty is
+honest, lower when it is optimistic), time from the first frame a victim is in view
+to its first report; "total" pools
 every match of the suite. The figures are stored in ``bench/accuracy_baseline.json``
 (the regression file; its "guard" entries, two short missions, are what
 tests/test_accuracy_regression.py re-measures and compares on every ``make test``).
