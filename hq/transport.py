@@ -24,7 +24,7 @@ import time
 from typing import Protocol
 
 from mavlink_io.errors import LinkError
-from mavlink_io.link import ReconnectingLink
+from mavlink_io.link import ReconnectingLink, bound_address
 from mavlink_io.linkspec import LinkSpec
 
 log = logging.getLogger(__name__)
@@ -67,14 +67,11 @@ class UdpHubLink:
         self._peers: dict[tuple[str, int], float] = {}  # address -> last heard (monotonic)
         self._peer_timeout_s = peer_timeout_s
         self.dropped_peers = 0
-        self.name = f"udpin:{host}:{self.local_address[1]}"
+        self.name = f"udpin:{host}:{sock.getsockname()[1]}"
 
     @property
     def local_address(self) -> tuple[str, int]:
-        if self._sock is None:
-            raise LinkError(f"{self.name}: closed")
-        host, port = self._sock.getsockname()[:2]
-        return (str(host), int(port))
+        return bound_address(self._sock, self.name)
 
     def live_peers(self) -> list[tuple[str, int]]:
         now = time.monotonic()

@@ -86,6 +86,15 @@ def _wait_readable(fileno: int | list[int], timeout_s: float) -> list[int]:
     return readable
 
 
+def bound_address(sock: socket.socket | None, name: str) -> tuple[str, int]:
+    """The (host, port) a listening socket is bound to: the port the OS chose when
+    the spec said 0. LinkError once the link is closed (``sock`` is None)."""
+    if sock is None:
+        raise LinkError(f"{name}: closed")
+    host, port = sock.getsockname()[:2]
+    return (str(host), int(port))
+
+
 class SerialLink:
     """A serial port through pyserial; reads select() on its file descriptor."""
 
@@ -160,10 +169,7 @@ class _UdpLink:
     @property
     def local_address(self) -> tuple[str, int]:
         """The bound (host, port): the port the OS chose when the spec said 0."""
-        if self._sock is None:
-            raise LinkError(f"{self.name}: closed")
-        host, port = self._sock.getsockname()[:2]
-        return (str(host), int(port))
+        return bound_address(self._sock, self.name)
 
     def _receive(self, timeout_s: float, learn_peer: bool) -> bytes:
         sock = self._sock
@@ -337,14 +343,11 @@ class TcpInLink:
             raise LinkError(f"tcpin:{host}:{port}: cannot listen: {exc}") from exc
         listener.setblocking(False)
         self._listener: socket.socket | None = listener
-        self.name = f"tcpin:{host}:{self.local_address[1]}"
+        self.name = f"tcpin:{host}:{listener.getsockname()[1]}"
 
     @property
     def local_address(self) -> tuple[str, int]:
-        if self._listener is None:
-            raise LinkError(f"{self.name}: closed")
-        host, port = self._listener.getsockname()[:2]
-        return (str(host), int(port))
+        return bound_address(self._listener, self.name)
 
     @property
     def has_peer(self) -> bool:

@@ -81,6 +81,20 @@ def test_open_link_chooses_transport_from_spec() -> None:
         udp.close()  # safe twice
 
 
+def test_listening_links_name_the_os_chosen_port_and_refuse_it_once_closed() -> None:
+    """Tests and the sim bind port 0; the chosen port is what a peer must be told."""
+    from hq.transport import UdpHubLink
+
+    links = [UdpInLink("127.0.0.1", 0), TcpInLink("127.0.0.1", 0), UdpHubLink("127.0.0.1", 0)]
+    for link in links:
+        host, port = link.local_address
+        assert host == "127.0.0.1" and port > 0
+        assert link.name.endswith(f":127.0.0.1:{port}")
+        link.close()
+        with pytest.raises(LinkError, match="closed"):
+            link.local_address  # noqa: B018 (the property is the call under test)
+
+
 def test_udpin_replies_to_last_speaker_and_drops_before_anyone_spoke() -> None:
     server = UdpInLink("127.0.0.1", 0)
     a = UdpOutLink("127.0.0.1", server.local_address[1])
