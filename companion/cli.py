@@ -69,10 +69,9 @@ def _check_config(config: Config) -> int:
 
 
 def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
-    import signal
-
     from companion.sdnotify import Notifier
     from companion.service import FaultInjection, Service
+    from companion.stopsignals import StopSignals
     from companion.store import StoreError
     from companion.vision import VisionError
     from mavlink_io.errors import LinkError, SigningError, TlogError
@@ -90,14 +89,10 @@ def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
         print(f"rescue-companion: {exc}", file=sys.stderr)
         return EXIT_FAILURE
 
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %s: stopping", signal.Signals(signum).name)
-        service.stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    signals = StopSignals()
+    signals.install()
     try:
-        return service.run()
+        return service.run(signals.reason)
     finally:
         notifier.close()
 

@@ -60,6 +60,7 @@ MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
 _SAVE_PERIOD_S = 5.0  # the tracker is saved at least this often while frames flow
 _MAILBOX_WAIT_S = 0.25
+_STOP_POLL_S = 0.1  # how often the main thread looks for a stop signal
 _SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
 
 
@@ -546,8 +547,10 @@ class Service:
 
     # -- lifecycle ---------------------------------------------------------------------
 
-    def run(self) -> int:
-        """Run until ``stop`` is set; 0 after a clean stop, 1 after a thread failed."""
+    def run(self, stop_reason: Callable[[], str | None] = lambda: None) -> int:
+        """Run until ``stop`` is set, or ``stop_reason`` (polled every
+        ``_STOP_POLL_S``) names a reason to stop, such as a signal; 0 after a clean
+        stop, 1 after a thread failed."""
         threads = [
             threading.Thread(target=self._guard(n, f), name=n, daemon=True)
             for n, f in (
@@ -564,7 +567,10 @@ class Service:
         log.info(
             "running: vehicle %s, camera %s", self.config.vehicle.url, self.config.camera.source
         )
-        self.stop.wait()
+        while not self.stop.wait(_STOP_POLL_S):
+            if (reason := stop_reason()) is not None:
+                log.info("%s: stopping", reason)
+                self.stop.set()
         self.notifier.stopping()
         log.info("stopping")
         for t in threads:
