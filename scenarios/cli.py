@@ -16,9 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
-import threading
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -141,13 +140,13 @@ def _cmd_sheet(args: argparse.Namespace, world: World) -> int:
 
 
 def _cmd_rover(args: argparse.Namespace, world: World) -> int:
+    from companion.stopsignals import StopSignals
     from scenarios.camserver import CameraServer
     from scenarios.render import Renderer
     from scenarios.rover import SimRover
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signals = StopSignals()  # not Event.set in a handler: see companion/stopsignals.py
+    signals.install()
     rover = SimRover(world, args.link, time_scale=args.time_scale, speed_m_s=args.speed_m_s)
     cam = None
     try:
@@ -164,7 +163,8 @@ def _cmd_rover(args: argparse.Namespace, world: World) -> int:
                 time_scale=args.time_scale,
             ).start()
             print(f"camera: tcp {cam.address[0]}:{cam.address[1]}", flush=True)
-        stop.wait()
+        while signals.reason() is None:
+            time.sleep(0.1)
     finally:
         if cam is not None:
             cam.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import socket
 import struct
 import subprocess
@@ -332,3 +333,29 @@ def test_camera_server_sends_length_time_jpeg_frames() -> None:
     finally:
         server.close()
     assert struct.calcsize(">IQ") == HEADER.size == 12
+
+
+def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
+    """A harness may stop the simulated rover the moment it is up: exit 0, promptly.
+    (The handler race behind a hang is pinned deterministically in
+    tests/test_companion_stopsignals.py; this run rarely hits its window.)"""
+    with subprocess.Popen(
+        [
+            *(sys.executable, "-m", "scenarios.cli", "rover", "--preset", "empty"),
+            *("--link", "udpin:127.0.0.1:0", "--camera-port", "0"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as proc:
+        try:
+            assert proc.stdout is not None and proc.stderr is not None
+            first = proc.stdout.readline()
+            assert first.startswith("rover link 0: udpin:127.0.0.1:"), first
+            proc.send_signal(signal.SIGTERM)
+            code = proc.wait(timeout=10)
+            assert code == 0, proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
