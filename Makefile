@@ -21,6 +21,9 @@ $(STAMP): pyproject.toml $(SYSTAMP)
 	# opencv-python 5.x, matplotlib and vtk for map and GUI modules we do not use; the
 	# 5.x cv2 would shadow our headless 4.x, so it goes in without them.
 	$(BIN)/python -m pip install --quiet --no-deps 'mavproxy>=1.8.70' pynmeagps defusedxml
+	# The person models (MediaPipe, Apache-2.0) from the npm registry, checked by sha256,
+	# into .venv/share/rescue-companion/models; nothing is downloaded at run time.
+	$(BIN)/rescue-companion models fetch
 	@touch $@
 
 demo: $(STAMP)

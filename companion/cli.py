@@ -52,7 +52,53 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument(
         "--out", type=Path, required=True, help="victims JSON (a map PNG goes beside it)"
     )
+    det = sub.add_parser("detect", help="run the perception step on image files")
+    det.add_argument("--config", type=Path, default=None, help="camera and detector settings")
+    det.add_argument("--json", action="store_true", help="one JSON object per image")
+    det.add_argument("--annotate", type=Path, default=None, metavar="DIR", help="draw detections")
+    det.add_argument("images", type=Path, nargs="+", metavar="IMAGE_OR_DIR")
+    models = sub.add_parser("models", help="fetch or check the person model files")
+    models.add_argument("action", choices=["fetch", "check"])
+    models.add_argument("--dir", type=Path, default=None, help="model folder (default: the venv's)")
     return parser
+
+
+def _models(action: str, folder: Path | None) -> int:
+    from companion.vision import models
+
+    where = folder or models.default_model_dir()
+    if action == "fetch":
+        try:
+            written = models.fetch(folder)
+        except models.ModelMissing as exc:
+            print(f"rescue-companion: models: {exc}", file=sys.stderr)
+            return EXIT_FAILURE
+        print(f"models ok in {where} ({len(written)} downloaded, checked by sha256)")
+        return EXIT_OK
+    problems = models.verify(folder)
+    for line in problems:
+        print(f"rescue-companion: models: {line}", file=sys.stderr)
+    if not problems:
+        print(f"models ok in {where}")
+    return EXIT_CONFIG if problems else EXIT_OK
+
+
+def _detect(args: argparse.Namespace) -> int:
+    from companion.detectcmd import run_detect
+    from companion.vision import VisionError
+
+    config = None
+    if args.config is not None:
+        try:
+            config = load_config(args.config)
+        except ConfigError as exc:
+            print(f"rescue-companion: config error: {exc}", file=sys.stderr)
+            return EXIT_CONFIG
+    try:
+        return run_detect(config, args.images, args.json, args.annotate)
+    except VisionError as exc:
+        print(f"rescue-companion: detect: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
 
 
 def _check_config(config: Config) -> int:
@@ -133,6 +179,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+    if args.command == "models":
+        return _models(args.action, args.dir)
+    if args.command == "detect":
+        return _detect(args)
     try:
         config = load_config(args.config)
     except ConfigError as exc:

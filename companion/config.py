@@ -148,7 +148,7 @@ class CameraConfig:
 class DetectorConfig:
     """Which detector runs, and its settings."""
 
-    backend: Literal["classic", "dnn", "hog"] = "classic"
+    backend: Literal["people", "classic", "dnn", "hog"] = "people"
     enhance: bool = True  # dark-scene enhancement before detection
     min_score: float = 0.5
     dnn_model: Path | None = None  # ONNX file, YOLO-style output
@@ -159,6 +159,7 @@ class DetectorConfig:
     box_fill_ratio: float = 0.5  # dnn/hog: share of a person's box that is body (visible area)
     work_width_px: int = 320  # classic: frames are reduced to this width before detection
     body_silhouette_fill: float = 0.75  # lying adult's silhouette / its length x width rectangle
+    model_dir: Path | None = None  # people: folder of the model files (None: the default one)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_score <= 1.0:

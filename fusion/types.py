@@ -134,8 +134,18 @@ class Detection:
     visible_area_px: float  # pixels of the segmentation mask
     score: float  # detector confidence in [0, 1]
     source: str = ""  # which detector backend produced it
+    cues: tuple[str, ...] = ()  # the evidence behind it: "person", "landmarks", "mask", ...
+    # The detector's own estimate of a whole body's pixels, for images without a
+    # camera geometry (photos); with a geometry the floor's size prior is used.
+    expected_area_px: float | None = None
 
     def __post_init__(self) -> None:
+        if self.expected_area_px is not None and not (
+            math.isfinite(self.expected_area_px) and self.expected_area_px > 0.0
+        ):
+            raise ValueError(
+                f"Detection.expected_area_px must be finite and > 0, got {self.expected_area_px}"
+            )
         _check_finite(
             self,
             t_mono_s=self.t_mono_s,

@@ -19,6 +19,13 @@ VEHICLE_HEIGHT_M = (
 )
 
 
+# The detector the companion runs on simulated frames. The product's default is the
+# real person models (``people``), which do not see the flat figures this renderer
+# draws; until the renderer draws people that look like people (issue 15), the
+# simulated missions run the ``classic`` colour detector, which was built for them.
+SIM_DETECTOR_TOML = '[detector]\nbackend = "classic"  # the simulator\'s flat figures (issue 15)\n'
+
+
 def default_camera() -> CameraModel:
     from companion.calibration import camera_model
     from companion.config import CameraConfig
@@ -27,7 +34,8 @@ def default_camera() -> CameraModel:
 
 
 def camera_toml(camera: CameraModel, source: str, fps: float) -> str:
-    """A [camera] config fragment that rebuilds exactly this camera model."""
+    """A [camera] config fragment that rebuilds exactly this camera model, and the
+    simulator's [detector]."""
     k, m = camera.intrinsics, camera.mount
     dist = ", ".join(repr(float(c)) for c in k.distortion)
     return "\n".join(
@@ -52,6 +60,7 @@ def camera_toml(camera: CameraModel, source: str, fps: float) -> str:
             f"pitch_deg = {math.degrees(m.pitch_rad)!r}",
             f"yaw_deg = {math.degrees(m.yaw_rad)!r}",
             "",
+            SIM_DETECTOR_TOML,
         ]
     )
 

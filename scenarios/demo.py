@@ -26,6 +26,7 @@ from companion.missionmap import draw_mission_map
 from companion.store import Store
 from fusion.tracker import VictimTracker
 from fusion.types import TrackState
+from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.live import LiveSim
 from scenarios.score import GroundTruth, ReportedVictim, TrueVictim, format_score, score
 from scenarios.world import World
@@ -54,7 +55,7 @@ def _companion_config(sim: LiveSim, out_dir: Path) -> Path:
         '[hq]\nurl = ""  # reports go inside TUNNEL through the rover, as through ArduPilot\n'
         "tunnel = true\n\n"
         f'[camera]\nsource = "{sim.camera_source}"\n\n'
-        f'[paths]\nstate_dir = "{out_dir / "companion-state"}"\n'
+        f'[paths]\nstate_dir = "{out_dir / "companion-state"}"\n\n' + SIM_DETECTOR_TOML
     )
     return path
 

@@ -20,6 +20,7 @@ from conftest import NotifySocket
 
 from companion.config import load_config
 from companion.replay import replay, result_document
+from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.world import preset
@@ -63,6 +64,7 @@ reopen_max_backoff_s = 0.5
 state_dir = "{tmp_path / "state"}"
 record_frames = {str(record_frames).lower()}
 """
+        + SIM_DETECTOR_TOML
     )
     return cfg
 

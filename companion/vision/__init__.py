@@ -38,9 +38,24 @@ __all__ = [
 ]
 
 
-def make_detector(config: DetectorConfig) -> Detector:
-    """The configured detector; DetectorUnavailable when it cannot be built here."""
+def make_detector(config: DetectorConfig, single_images: bool = False) -> Detector:
+    """The configured detector; DetectorUnavailable when it cannot be built here.
+
+    ``single_images``: each frame stands alone (photos, ``rescue-companion detect``),
+    so no work is spread across frames."""
     enhancer = Enhancer() if config.enhance else None
+    if config.backend == "people":
+        from companion.vision.people import PeopleDetector, PeopleParams
+
+        return PeopleDetector(
+            PeopleParams(
+                silhouette_fill=config.body_silhouette_fill,
+                turned_every_frames=1 if single_images else PeopleParams.turned_every_frames,
+            ),
+            enhancer,
+            config.min_score,
+            config.model_dir,
+        )
     if config.backend == "classic":
         from companion.vision.classic import ClassicDetector, ClassicParams
 

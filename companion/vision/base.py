@@ -41,6 +41,8 @@ DEFAULT_SILHOUETTE_FILL = 0.75
 _CACHE_CELL_PX = 8  # FrameGeometry answers are cached per 8x8-pixel cell
 
 FloorMap = Callable[[np.ndarray], np.ndarray]  # pixels (N, 2) -> floor (N, 2), NaN off it
+PlaneMap = Callable[[np.ndarray, float], np.ndarray]  # (pixels, height_m) -> (N, 2) on that plane
+PixelMap = Callable[[np.ndarray], np.ndarray]  # floor (N, 2) -> pixels (N, 2), NaN if not in front
 
 
 class VisionError(Exception):
@@ -67,10 +69,14 @@ class FrameGeometry:
         metres_per_px: Callable[[float, float], float | None],
         expected_body_area_px: Callable[[float, float], float | None],
         floor_ne_m: FloorMap | None = None,
+        plane_ne_m: PlaneMap | None = None,
+        pixels_of_floor: PixelMap | None = None,
     ) -> None:
         self._mpp = metres_per_px
         self._area = expected_body_area_px
         self._floor = floor_ne_m
+        self._plane = plane_ne_m
+        self._pixels_of = pixels_of_floor
         self._cache: dict[tuple[str, int, int], float | None] = {}
 
     def _cached(
@@ -106,6 +112,23 @@ class FrameGeometry:
                 out[i] = (v * mpp, u * mpp)
         return out
 
+    def plane_ne_m(self, pixels: np.ndarray, height_m: float) -> np.ndarray:
+        """Where the rays of ``pixels`` cross a plane ``height_m`` above the floor
+        (a lying body's joints are about 0.1 m up): (N, 2) north, east; NaN where
+        the ray does not reach it in range. Without a 3-D camera: the floor map."""
+        if self._plane is None or height_m == 0.0:
+            return self.floor_ne_m(pixels)
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        return np.asarray(self._plane(px, height_m), dtype=np.float64).reshape(-1, 2)
+
+    def pixels_of_floor(self, floor_ne: np.ndarray) -> np.ndarray | None:
+        """Pixels (N, 2) of floor points (N, 2); NaN rows behind the camera; None
+        when this geometry cannot project (built from callables alone)."""
+        if self._pixels_of is None:
+            return None
+        pts = np.asarray(floor_ne, dtype=np.float64).reshape(-1, 2)
+        return np.asarray(self._pixels_of(pts), dtype=np.float64).reshape(-1, 2)
+
     @classmethod
     def constant(
         cls,
@@ -127,7 +150,10 @@ class FrameGeometry:
             out[px[:, 1] < floor_from_v_px] = np.nan
             return out
 
-        return cls(mpp, area, floor)
+        def pixels(ne: np.ndarray) -> np.ndarray:
+            return np.column_stack([ne[:, 1], ne[:, 0]]) / metres_per_px
+
+        return cls(mpp, area, floor, None, pixels)
 
     @classmethod
     def from_pose(
@@ -160,23 +186,29 @@ class FrameGeometry:
                 return None
             return float(rect_px) * silhouette_fill if rect_px > 0.0 else None
 
-        return cls(mpp, area, _floor_map(camera, pose, params))
+        plane = _plane_map(camera, pose, params)
+
+        def floor(px: np.ndarray) -> np.ndarray:
+            return plane(px, 0.0)
+
+        return cls(mpp, area, floor, plane, _pixel_map(camera, pose, params))
 
 
-def _floor_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> FloorMap:
-    """fusion.geolocate's ray-floor intersection for many pixels at once (no covariance):
-    NaN where the ray misses the floor or lands outside [min_range_m, max_range_m]."""
+def _plane_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> PlaneMap:
+    """fusion.geolocate's ray-floor intersection for many pixels at once (no covariance),
+    to the floor or to a plane ``height_m`` above it: NaN where the ray misses it or
+    lands outside [min_range_m, max_range_m] along the ray."""
     from fusion.camera import rotation_zyx
 
     r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
     vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
     centre, r_ned_cam = camera.camera_pose_ned(vehicle, r_ned_body)
     floor_down = pose.down_m + params.floor_down_m
-    above = floor_down - centre[2]
 
-    def floor(px: np.ndarray) -> np.ndarray:
+    def plane(px: np.ndarray, height_m: float) -> np.ndarray:
         if len(px) == 0:
             return np.zeros((0, 2))
+        above = floor_down - height_m - centre[2]
         dirs = camera.rays_camera(px) @ r_ned_cam.T
         down = dirs[:, 2]
         ok = (down > 1e-9) & (above > 0.0)
@@ -186,4 +218,23 @@ def _floor_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams)
         ne[~ok] = np.nan
         return ne
 
-    return floor
+    return plane
+
+
+def _pixel_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> PixelMap:
+    from fusion.camera import rotation_zyx
+
+    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
+    floor_down = pose.down_m + params.floor_down_m
+
+    def pixels(ne: np.ndarray) -> np.ndarray:
+        pts = np.column_stack([ne, np.full(len(ne), floor_down)])
+        centre, r_ned_cam = camera.camera_pose_ned(vehicle, r_ned_body)
+        in_front = ((pts - centre) @ r_ned_cam)[:, 2] > 1e-6
+        px, _inside = camera.project_ned(pts, vehicle, r_ned_body)
+        px = np.asarray(px, dtype=np.float64)
+        px[~in_front] = np.nan
+        return px
+
+    return pixels

@@ -38,9 +38,15 @@ class Assessment:
     expected_body_area_px: float
 
 
-def assess(detection: Detection, geometry: FrameGeometry) -> Assessment | None:
-    """Visibility and urgency of a detection; None where the geometry has no floor."""
-    expected = geometry.expected_body_area_px(detection.u_px, detection.v_px)
+def assess(detection: Detection, geometry: FrameGeometry | None) -> Assessment | None:
+    """Visibility and urgency of a detection; None where the geometry has no floor.
+
+    Without a geometry (a photo) the detector's own estimate of the whole body's
+    pixels is used (``Detection.expected_area_px``); None if it gave none."""
+    if geometry is None:
+        expected: float | None = detection.expected_area_px
+    else:
+        expected = geometry.expected_body_area_px(detection.u_px, detection.v_px)
     if expected is None or expected <= 0.0:
         return None
     pct = visibility_pct(detection.visible_area_px, expected)

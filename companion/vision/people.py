@@ -1,0 +1,390 @@
+"""The ``people`` backend: pretrained MediaPipe person models, fused into one
+detection per body.
+
+Models (companion/vision/models.py; all Apache-2.0, run on one CPU thread):
+
+- BlazePose person detector (224x224, letterboxed frame): finds a person by the
+  head and upper body, and gives the hip centre and a body-scale point;
+- BlazePose lite landmarks (256x256, an oriented crop around each person): 33
+  body points (all of them, visible or not) and a mask of the body's visible
+  pixels; its pose flag says whether a person is really in the crop;
+- selfie segmentation (144x256, the whole frame): person pixels; it also paints
+  some non-people (a red car), so it only ever measures a body another cue found;
+- palm detector (192x192) and full-range face detector (192x192): the small parts
+  that stay visible under rubble, alone or as support for a body.
+
+Fusion, per frame:
+
+1. Each person detection is a body. Its region is the landmark model's crop; its
+   visible pixels are the landmark mask or the segmentation inside that region.
+2. A face or palm inside a body's region supports that body (a cue). One that
+   belongs to no body is a body of its own: a lone exposed part.
+3. Cues are listed on the detection: person, landmarks, mask, face, hand.
+
+Visible area is measured in frame pixels; ``visibility.assess`` divides it by the
+area a whole lying adult would cover at the body's floor point (the camera
+geometry), or, without a geometry (a photo), by the body's own extent from its
+landmarks (``Detection.expected_area_px``).
+
+Where the body lies: the floor point is the centre of the body's floor footprint,
+not the image centroid of its mask. With landmarks, every body point is taken
+to a plane ``joint_height_m`` above the floor (a lying adult's joints are about
+0.1 m up) and the footprint's centre is their mean; a standing body (its upper
+points do not reach that plane in range, or stand far from its hips) is placed at
+its feet. Without landmarks, the detector's hip centre is used; a lone part is
+placed where its box meets the floor.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.vision import models, ssd
+from companion.vision.base import FrameGeometry
+from companion.vision.enhance import Enhancer
+from companion.vision.tflite import Model, RotatedRect, letterbox, to_range
+from fusion.types import Detection
+
+POSE_SPEC = ssd.SsdSpec(224, (8, 16, 32, 32, 32), 4, 0.5)
+PALM_SPEC = ssd.SsdSpec(192, (8, 16, 16, 16), 7, 0.5)
+FACE_SPEC = ssd.SsdSpec(192, (4,), 6, 0.5, interpolated_scale=False)
+
+LANDMARK_PX = 256
+N_BODY_POINTS = 33
+# BlazePose indices: nose 0, shoulders 11/12, hips 23/24, knees 25/26, ankles 27/28.
+_SHOULDERS, _HIPS, _ANKLES = (11, 12), (23, 24), (27, 28)
+
+# Proportions of an adult (share of standing height): for a body's own extent in a
+# photo, and for the whole body behind a lone face or hand.
+BODY_WIDTH_SHARE = 0.26  # 0.45 m of 1.7 m
+FACE_HEIGHT_SHARE = 0.13  # chin to hairline, as the face detector boxes it
+HAND_LENGTH_SHARE = 0.11
+
+
+@dataclass(frozen=True)
+class PeopleParams:
+    person_min_score: float = 0.5  # BlazePose person detector
+    landmark_min_flag: float = 0.5  # landmark model's "a person is in this crop"
+    face_min_score: float = 0.75  # a face that stands alone (supporting: person_min_score)
+    palm_min_score: float = 0.8  # a palm that stands alone
+    part_support_score: float = 0.5  # a face or palm that supports a body
+    mask_threshold: float = 0.5
+    max_bodies: int = 4  # landmark crops per frame (each ~10 ms on one core)
+    # The person detector is trained on mostly upright people; a body lying across
+    # the view is found more often in the frame turned by 90 degrees. Each turned
+    # pass costs one more detector run (~10 ms). ``turned_every_frames``: 1 runs both
+    # (clockwise, anticlockwise) on every frame, as for a single photo; n >= 2 runs
+    # one of them on every n-th frame, taking turns (a live camera sees a body on
+    # many frames); 0 never.
+    turned_every_frames: int = 2
+    joint_height_m: float = 0.10  # a lying adult's joints above the floor
+    standing_hip_shoulder_m: float = 1.0  # farther apart on the joint plane: standing
+    silhouette_fill: float = 0.75  # body silhouette / length x width rectangle
+    # The models see better on the enhanced frame only when the scene is dark (on
+    # well-lit real frames enhancement costs recall: bench/real_images.py).
+    enhance_below_luma: float = 0.25
+    lone_person_weight: float = 0.75  # a person detection no other cue supports
+    min_part_mask_share: float = 0.2  # a lone part's box covered by the person mask for "mask"
+
+
+@dataclass
+class _Body:
+    score: float
+    cues: set[str]
+    region: np.ndarray | None  # uint8 mask of the landmark crop in the frame
+    mask: np.ndarray | None  # bool, visible body pixels
+    points: np.ndarray | None  # (33, 2) landmarks in frame pixels, when trusted
+    hip_px: np.ndarray  # (2,) hip centre
+    box: tuple[float, float, float, float]  # x0, y0, x1, y1
+    part: str = ""  # "face" / "hand" for a lone part
+    part_extent_px: float = 0.0  # the part's size, for a body's extent in a photo
+    extras: list[tuple[float, float, float, float]] = field(default_factory=list)
+
+
+def _mean_luma(image_bgr: np.ndarray) -> float:
+    """Mean luma in [0, 1] on a 1/8 subsample."""
+    small = image_bgr[::8, ::8]
+    grey = cv2.cvtColor(np.ascontiguousarray(small), cv2.COLOR_BGR2GRAY)
+    return float(grey.mean()) / 255.0
+
+
+def _rect_from_keypoints(kp: np.ndarray, scale: float = 1.25) -> RotatedRect:
+    (x0, y0), (x1, y1) = kp[0], kp[1]
+    size = 2.0 * math.hypot(x1 - x0, y1 - y0) * scale
+    angle = math.pi / 2 - math.atan2(-(y1 - y0), x1 - x0)
+    return RotatedRect(float(x0), float(y0), max(size, 8.0), angle)
+
+
+class PeopleDetector:
+    """Person models fused into one detection per body. One instance per thread."""
+
+    name = "people"
+
+    def __init__(
+        self,
+        params: PeopleParams | None = None,
+        enhancer: Enhancer | None = None,
+        min_score: float = 0.5,
+        model_dir: Path | None = None,
+    ) -> None:
+        self.params = params or PeopleParams()
+        self.enhancer = enhancer
+        self.min_score = min_score
+        self._pose = Model(models.model_path("pose_detection.tflite", model_dir))
+        self._landmarks = Model(models.model_path("pose_landmark_lite.tflite", model_dir))
+        self._segment = Model(models.model_path("selfie_segmentation_landscape.tflite", model_dir))
+        self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir))
+        self._face = Model(models.model_path("face_detection_full_range.tflite", model_dir))
+        self._frame = 0  # frames seen, for the turned passes' turns
+        self._anchors = {
+            "pose": ssd.anchors(POSE_SPEC),
+            "palm": ssd.anchors(PALM_SPEC),
+            "face": ssd.anchors(FACE_SPEC),
+        }
+
+    # -- models ---------------------------------------------------------------
+
+    def _ssd(
+        self, model: Model, spec: ssd.SsdSpec, key: str, rgb: np.ndarray, lo: float
+    ) -> list[tuple[ssd.SsdDetection, np.ndarray, np.ndarray]]:
+        """Detections with their box (x0, y0, x1, y1) and keypoints in frame pixels."""
+        square, lb = letterbox(rgb, spec.input_px)
+        raw_boxes, raw_scores = model(to_range(square, lo, 1.0))
+        out = []
+        for d in ssd.decode(spec, self._anchors[key], raw_boxes, raw_scores):
+            box = lb.to_image(np.array(d.box).reshape(2, 2)).reshape(-1)
+            out.append((d, box, lb.to_image(d.keypoints)))
+        return out
+
+    def _passes(self) -> list[int | None]:
+        every = self.params.turned_every_frames
+        if every == 1:
+            return [None, cv2.ROTATE_90_CLOCKWISE, cv2.ROTATE_90_COUNTERCLOCKWISE]
+        if every <= 0:
+            return [None]
+        self._frame += 1
+        if self._frame % every:
+            return [None]
+        turn = (self._frame // every) % 2
+        return [None, (cv2.ROTATE_90_CLOCKWISE, cv2.ROTATE_90_COUNTERCLOCKWISE)[turn]]
+
+    def _persons(
+        self, rgb: np.ndarray, turn: int | None
+    ) -> list[tuple[ssd.SsdDetection, np.ndarray, np.ndarray]]:
+        """Person detections (box and keypoints in frame pixels) on the frame as it is
+        or turned by 90 degrees (``cv2.ROTATE_*``)."""
+        image = rgb if turn is None else cv2.rotate(rgb, turn)
+        found = [
+            x
+            for x in self._ssd(self._pose, POSE_SPEC, "pose", image, -1.0)
+            if x[0].score >= self.params.person_min_score
+        ]
+        if turn is None:
+            return found
+        h, w = rgb.shape[:2]
+
+        def back(xy: np.ndarray) -> np.ndarray:
+            xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+            if turn == cv2.ROTATE_90_CLOCKWISE:  # (x', y') = (h - 1 - y, x)
+                return np.column_stack([xy[:, 1], h - 1 - xy[:, 0]])
+            return np.column_stack([w - 1 - xy[:, 1], xy[:, 0]])  # anticlockwise
+
+        out = []
+        for d, box, kp in found:
+            corners = back(box.reshape(2, 2))
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+            out.append((d, np.concatenate([lo, hi]), back(kp)))
+        return out
+
+    def _segmentation(self, rgb: np.ndarray) -> np.ndarray:
+        h, w = self._segment.input_hw
+        small = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_AREA)
+        prob = self._segment(to_range(small, 0.0, 1.0))[0][..., 0]
+        return cv2.resize(prob, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
+
+    def _body(
+        self, rgb: np.ndarray, seg: np.ndarray, score: float, kp: np.ndarray, box: np.ndarray
+    ) -> _Body:
+        p = self.params
+        hw = rgb.shape[:2]
+        rect = _rect_from_keypoints(kp)
+        out = self._landmarks(to_range(rect.crop(rgb, LANDMARK_PX), 0.0, 1.0))
+        flag = float(out[1].reshape(-1)[0])
+        region = rect.paste(np.ones((LANDMARK_PX, LANDMARK_PX), np.uint8), hw)
+        cues = {"person"}
+        points = None
+        if flag >= p.landmark_min_flag:
+            cues.add("landmarks")
+            points = rect.to_image(out[0].reshape(-1, 5)[:N_BODY_POINTS, :2], LANDMARK_PX)
+            lm_logit = out[2][..., 0]
+            lm_prob = rect.paste(1.0 / (1.0 + np.exp(-np.clip(lm_logit, -30, 30))), hw)
+            mask = (lm_prob > p.mask_threshold) | ((seg > p.mask_threshold) & (region > 0))
+        else:
+            mask = (seg > p.mask_threshold) & (region > 0)
+        if mask.any():
+            cues.add("mask")
+        x0, y0, x1, y1 = (float(b) for b in box)
+        if points is not None:
+            x0, y0 = min(x0, float(points[:, 0].min())), min(y0, float(points[:, 1].min()))
+            x1, y1 = max(x1, float(points[:, 0].max())), max(y1, float(points[:, 1].max()))
+        if mask.any():
+            ys, xs = np.nonzero(mask)
+            x0, y0 = min(x0, float(xs.min())), min(y0, float(ys.min()))
+            x1, y1 = max(x1, float(xs.max() + 1)), max(y1, float(ys.max() + 1))
+        combined = score if points is None else 1.0 - (1.0 - score) * (1.0 - 0.5 * flag)
+        if cues == {"person"}:
+            combined *= p.lone_person_weight  # the detector alone fires on empty rooms
+        return _Body(combined, cues, region, mask, points, kp[0], (x0, y0, x1, y1))
+
+    # -- fusion ---------------------------------------------------------------
+
+    def detect(
+        self, image_bgr: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
+    ) -> list[Detection]:
+        p = self.params
+        if self.enhancer is not None and _mean_luma(image_bgr) < p.enhance_below_luma:
+            image_bgr = self.enhancer(image_bgr)
+        rgb = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2RGB)
+        h, w = rgb.shape[:2]
+        seg = self._segmentation(rgb)
+        bodies: list[_Body] = []
+        for turn in self._passes():
+            for d, box, kp in self._persons(rgb, turn):
+                if len(bodies) >= p.max_bodies:
+                    break
+                hx = int(np.clip(kp[0, 0], 0, w - 1))
+                hy = int(np.clip(kp[0, 1], 0, h - 1))
+                if any(b.region is not None and b.region[hy, hx] for b in bodies):
+                    continue  # the same body, seen again by a turned pass
+                bodies.append(self._body(rgb, seg, d.score, kp, box))
+        parts = [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
+        parts += [("hand", x) for x in self._ssd(self._palm, PALM_SPEC, "palm", rgb, 0.0)]
+        for kind, (d, box, _kp) in parts:
+            cx = int(np.clip((box[0] + box[2]) / 2, 0, w - 1))
+            cy = int(np.clip((box[1] + box[3]) / 2, 0, h - 1))
+            owner = next((b for b in bodies if b.region is not None and b.region[cy, cx]), None)
+            if owner is not None:
+                if d.score >= p.part_support_score:
+                    owner.cues.add(kind)
+                continue
+            lone_min = p.face_min_score if kind == "face" else p.palm_min_score
+            if d.score < lone_min:
+                continue
+            bodies.append(self._part(kind, d.score, box, seg, w, h))
+        out = []
+        for b in bodies:
+            det = self._detection(b, geometry, t_mono_s, w, h)
+            if det is not None and det.score >= self.min_score:
+                out.append(det)
+        return out
+
+    def _part(
+        self, kind: str, score: float, box: np.ndarray, seg: np.ndarray, w: int, h: int
+    ) -> _Body:
+        x0, y0 = max(0.0, float(box[0])), max(0.0, float(box[1]))
+        x1, y1 = min(float(w), float(box[2])), min(float(h), float(box[3]))
+        region = np.zeros((h, w), np.uint8)
+        region[int(y0) : math.ceil(y1), int(x0) : math.ceil(x1)] = 1
+        mask = (seg > self.params.mask_threshold) & (region > 0)
+        cues = {kind}
+        box_area = max(1.0, (x1 - x0) * (y1 - y0))
+        if mask.sum() >= self.params.min_part_mask_share * box_area:
+            cues.add("mask")
+        else:
+            mask = region > 0  # the part's box is what is seen of it
+        extent = max(x1 - x0, y1 - y0)
+        centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+        return _Body(score, cues, region, mask, None, centre, (x0, y0, x1, y1), kind, extent)
+
+    def _floor_pixel(
+        self, b: _Body, geometry: FrameGeometry | None, w: int, h: int
+    ) -> tuple[float, float]:
+        """The pixel of the body's floor point (see the module docstring)."""
+        p = self.params
+        x0, _y0, x1, y1 = b.box
+        if geometry is None:
+            if b.points is not None:
+                return float(np.clip(b.points[:, 0].mean(), 0, w - 1)), float(
+                    np.clip(y1 - 1, 0, h - 1)
+                )
+            return (x0 + x1) / 2, min(y1, h) - 0.5
+        if b.points is not None:
+            joints = geometry.plane_ne_m(b.points, p.joint_height_m)
+            hips = joints[list(_HIPS)].mean(axis=0)
+            shoulders = joints[list(_SHOULDERS)].mean(axis=0)
+            lying = bool(np.all(np.isfinite(hips)) and np.all(np.isfinite(shoulders))) and (
+                float(np.hypot(*(hips - shoulders))) <= p.standing_hip_shoulder_m
+            )
+            finite = joints[np.all(np.isfinite(joints), axis=1)]
+            if lying and len(finite) >= N_BODY_POINTS // 2:
+                centre = finite.mean(axis=0)
+            else:
+                feet = geometry.floor_ne_m(b.points[list(_ANKLES)])
+                feet = feet[np.all(np.isfinite(feet), axis=1)]
+                centre = feet.mean(axis=0) if len(feet) else np.array([np.nan, np.nan])
+        elif b.part:
+            centre = geometry.floor_ne_m(np.array([[(x0 + x1) / 2, min(y1, h) - 0.5]]))[0]
+        else:
+            centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
+        if np.all(np.isfinite(centre)):
+            px = geometry.pixels_of_floor(centre.reshape(1, 2))
+            if px is not None and np.all(np.isfinite(px[0])):
+                return float(px[0, 0]), float(px[0, 1])
+        return (x0 + x1) / 2, min(y1, h) - 0.5
+
+    def _own_extent_area(self, b: _Body) -> float:
+        """A whole body's pixels from the body's own extent (images without geometry)."""
+        p = self.params
+        if b.points is not None:
+            pts = b.points
+            head = pts[0]
+            mid_sh = pts[list(_SHOULDERS)].mean(axis=0)
+            mid_hip = pts[list(_HIPS)].mean(axis=0)
+            knees = pts[[25, 26]].mean(axis=0)
+            ankles = pts[list(_ANKLES)].mean(axis=0)
+            chain = [head, mid_sh, mid_hip, knees, ankles]
+            length = sum(float(np.hypot(*(a - c))) for a, c in itertools.pairwise(chain))
+            length *= 1.12  # crown above the nose, soles below the ankles
+        elif b.part == "face":
+            length = b.part_extent_px / FACE_HEIGHT_SHARE
+        elif b.part == "hand":
+            length = b.part_extent_px / HAND_LENGTH_SHARE
+        else:
+            x0, y0, x1, y1 = b.box
+            length = max(x1 - x0, y1 - y0)
+        return max(1.0, length * length * BODY_WIDTH_SHARE * p.silhouette_fill)
+
+    def _detection(
+        self, b: _Body, geometry: FrameGeometry | None, t_mono_s: float, w: int, h: int
+    ) -> Detection | None:
+        x0, y0 = max(0.0, b.box[0]), max(0.0, b.box[1])
+        x1, y1 = min(float(w), b.box[2]), min(float(h), b.box[3])
+        if x1 - x0 < 1.0 or y1 - y0 < 1.0:
+            return None
+        u, v = self._floor_pixel(b, geometry, w, h)
+        if b.mask is not None and b.mask.any():
+            visible = float(b.mask.sum())
+        else:  # no pixel mask: a person fills about half of its box (as dnn/hog assume)
+            visible = 0.5 * (x1 - x0) * (y1 - y0)
+        return Detection(
+            t_mono_s=t_mono_s,
+            u_px=u,
+            v_px=v,
+            bbox_xywh_px=(
+                int(x0),
+                int(y0),
+                max(1, round(x1 - x0)),
+                max(1, round(y1 - y0)),
+            ),
+            visible_area_px=visible,
+            score=float(min(1.0, max(0.0, b.score))),
+            source=self.name,
+            cues=tuple(sorted(b.cues)),
+            expected_area_px=self._own_extent_area(b),
+        )

@@ -1,0 +1,228 @@
+"""The ``people`` backend: real MediaPipe models on real frames, their files, and
+the geometry that places a body on the floor.
+
+The models come from the project's set-up (`rescue-companion models fetch`); the
+real frames from ../shared/data (tests that need them skip, naming the path).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bench.real_images import hits_box
+from companion.config import DetectorConfig
+from companion.vision import FrameGeometry, assess, make_detector, models, ssd
+from companion.vision.people import FACE_SPEC, PALM_SPEC, POSE_SPEC, PeopleDetector, PeopleParams
+from fusion.camera import CameraModel
+from fusion.params import GeolocationParams
+from fusion.types import Detection, PoseSample, Urgency
+from scenarios.camera import default_camera
+
+
+@pytest.fixture(scope="module")
+def detector() -> PeopleDetector:
+    return PeopleDetector(PeopleParams(turned_every_frames=1), None, 0.5)
+
+
+def _falls(shared_data: Path) -> tuple[Path, dict[str, dict[str, object]]]:
+    root = shared_data / "images" / "real_falls"
+    return root, json.loads((root / "gt.json").read_text())
+
+
+# -- the model files ---------------------------------------------------------------
+
+
+def test_the_installed_models_are_the_ones_we_ship() -> None:
+    assert models.verify() == []
+
+
+def test_a_missing_model_is_named_in_one_line(tmp_path: Path) -> None:
+    with pytest.raises(models.ModelMissing) as err:
+        PeopleDetector(model_dir=tmp_path)
+    text = str(err.value)
+    assert "pose_detection.tflite" in text and "missing" in text and "\n" not in text
+    assert "rescue-companion models fetch" in text
+
+
+def test_an_altered_model_is_refused(tmp_path: Path) -> None:
+    for name in models.MODELS:
+        (tmp_path / name).write_bytes(models.model_path(name).read_bytes())
+    target = tmp_path / "palm_detection_lite.tflite"
+    target.write_bytes(target.read_bytes()[:-10] + b"0123456789")
+    problems = models.verify(tmp_path)
+    assert len(problems) == 1 and "palm_detection_lite.tflite" in problems[0]
+    assert "sha256" in problems[0]
+
+
+def test_fetch_writes_nothing_when_every_file_is_there() -> None:
+    assert models.fetch() == []  # all present and checked: no download
+
+
+def test_cli_with_no_models_exits_2_with_one_line(tmp_path: Path) -> None:
+    image = tmp_path / "a.png"
+    cv2.imwrite(str(image), np.zeros((48, 64, 3), np.uint8))
+    proc = subprocess.run(
+        [sys.executable, "-m", "companion.cli", "detect", str(image)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"RESCUE_MODEL_DIR": str(tmp_path / "empty"), "PATH": "/usr/bin:/bin"},
+    )
+    assert proc.returncode == 2
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("rescue-companion")]
+    assert len(lines) == 1 and "pose_detection.tflite" in lines[0]
+    assert "Traceback" not in proc.stderr
+
+
+# -- the detector heads ------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("spec", "count"), [(POSE_SPEC, 2254), (PALM_SPEC, 2016), (FACE_SPEC, 2304)]
+)
+def test_anchor_counts_match_the_models_outputs(spec: ssd.SsdSpec, count: int) -> None:
+    anchors = ssd.anchors(spec)
+    assert anchors.shape == (count, 2)
+    assert anchors.min() > 0.0 and anchors.max() < 1.0
+
+
+def test_weighted_nms_merges_one_object_and_keeps_two() -> None:
+    boxes = np.array([[0.1, 0.1, 0.3, 0.3], [0.11, 0.1, 0.31, 0.3], [0.6, 0.6, 0.8, 0.8]])
+    kps = np.zeros((3, 1, 2))
+    out = ssd.weighted_nms(boxes, np.array([0.9, 0.6, 0.7]), kps, 0.3)
+    assert len(out) == 2
+    assert out[0].score == pytest.approx(0.9)
+    assert 0.1 < out[0].box[0] < 0.11  # averaged, weighted by score
+
+
+# -- real frames -------------------------------------------------------------------
+
+
+def test_finds_real_people_standing_and_lying(shared_data: Path, detector: PeopleDetector) -> None:
+    """Regression guard on bench/real_images.py's figures (BENCHMARKS.md): of 24 real
+    frames (11 people lying), at least 22 people and 9 lying are found, and nothing
+    that is not a person."""
+    root, gt = _falls(shared_data)
+    found = found_lying = false = 0
+    for rel, truth in gt.items():
+        dets = detector.detect(cv2.imread(str(root / rel)), None, 0.0)
+        box = truth["people"][0]  # type: ignore[index]
+        hit = [d for d in dets if hits_box(d, box)]
+        false += len(dets) - len(hit)
+        found += bool(hit)
+        found_lying += bool(hit) and truth["lying"][0]  # type: ignore[index]
+        for d in hit:
+            assert "person" in d.cues or "face" in d.cues or "hand" in d.cues
+    assert false == 0
+    assert found >= 22 and found_lying >= 9
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "skimage_gravel_gray.png",
+        "skimage_brick_gray.png",
+        "intel_one_by_one_frame0000_empty_room.png",
+        "wm_barcroft_car_damaged_by_tree.jpg",
+    ],
+)
+def test_no_person_in_debris_or_an_empty_room(
+    shared_data: Path, detector: PeopleDetector, name: str
+) -> None:
+    image = cv2.imread(str(shared_data / "images" / "negatives" / name))
+    assert detector.detect(image, None, 0.0) == []
+
+
+def test_a_fully_visible_person_is_light(shared_data: Path, detector: PeopleDetector) -> None:
+    root, _gt = _falls(shared_data)
+    image = cv2.imread(str(root / "frames" / "Subject_1-Fall-15_f169.jpg"))
+    (det,) = detector.detect(image, None, 0.0)
+    a = assess(det, None)
+    assert a is not None and a.urgency is Urgency.LIGHT
+    assert {"person", "landmarks", "mask"} <= set(det.cues)
+
+
+def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
+    """Without the real data: images this test makes (flat, noise, a dark frame)."""
+    rng = np.random.default_rng(3)
+    frames = [
+        np.full((480, 640, 3), 128, np.uint8),
+        rng.integers(0, 255, (480, 640, 3), dtype=np.uint8),
+        (rng.random((480, 640, 3)) * 20).astype(np.uint8),
+    ]
+    for frame in frames:
+        assert detector.detect(frame, None, 0.0) == []
+
+
+def test_live_detector_spreads_turned_passes_over_frames() -> None:
+    live = make_detector(DetectorConfig(backend="people"))
+    single = make_detector(DetectorConfig(backend="people"), single_images=True)
+    assert isinstance(live, PeopleDetector) and isinstance(single, PeopleDetector)
+    assert live.params.turned_every_frames == 2 and single.params.turned_every_frames == 1
+    turns = [len(live._passes()) for _ in range(4)]
+    assert turns == [2, 1, 2, 1] or turns == [1, 2, 1, 2]
+
+
+# -- geometry: where a body lies -----------------------------------------------------
+
+
+def _geometry() -> tuple[FrameGeometry, CameraModel, PoseSample, GeolocationParams]:
+    camera = default_camera()
+    pose = PoseSample(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    params = GeolocationParams()
+    return FrameGeometry.from_pose(camera, pose, params), camera, pose, params
+
+
+def test_pixels_of_floor_round_trips_floor_points() -> None:
+    geometry, *_ = _geometry()
+    pixels = np.array([[320.0, 400.0], [100.0, 300.0], [600.0, 470.0]])
+    floor = geometry.floor_ne_m(pixels)
+    assert np.all(np.isfinite(floor))
+    back = geometry.pixels_of_floor(floor)
+    assert back is not None
+    np.testing.assert_allclose(back, pixels, atol=1e-6)
+
+
+def test_a_joint_above_the_floor_is_placed_nearer_than_its_floor_ray() -> None:
+    """The ray of a point 0.1 m up meets that height before the floor: taking the
+    mask's pixel to the floor puts a lying body too far or, from its centroid, too
+    near; the joint plane puts it where it is."""
+    geometry, camera, _pose, params = _geometry()
+    pixel = np.array([[320.0, 300.0]])
+    floor = geometry.floor_ne_m(pixel)[0]
+    joint = geometry.plane_ne_m(pixel, 0.10)[0]
+    assert 0.0 < joint[0] < floor[0]
+    height = -camera.mount.z_m + params.floor_down_m  # camera above the floor
+    ahead = camera.mount.x_m  # camera ahead of the vehicle point (yaw 0: north)
+    ratio = (joint[0] - ahead) / (floor[0] - ahead)
+    assert ratio == pytest.approx((height - 0.10) / height, rel=1e-6)
+
+
+def test_visibility_without_geometry_uses_the_bodys_own_extent() -> None:
+    det = Detection(0.0, 10.0, 10.0, (0, 0, 20, 20), 30.0, 0.9, "people", ("hand",), 1000.0)
+    a = assess(det, None)
+    assert a is not None and a.visibility_pct == pytest.approx(3.0)
+    assert a.urgency is Urgency.CRITICAL
+    assert assess(Detection(0.0, 1.0, 1.0, (0, 0, 2, 2), 3.0, 0.9), None) is None
+
+
+def test_a_lone_face_is_critical_against_a_whole_body(detector: PeopleDetector) -> None:
+    """A lone face 30 px high: a body ~230 px tall behind it; 30x30 visible is ~6 %."""
+    body = detector._part(
+        "face", 0.9, np.array([100, 100, 130, 130]), np.zeros((480, 640)), 640, 480
+    )
+    det = detector._detection(body, None, 0.0, 640, 480)
+    assert det is not None and det.cues == ("face",)
+    a = assess(det, None)
+    assert a is not None and a.urgency is Urgency.CRITICAL
+    assert math.isclose(
+        a.visibility_pct, 900 / ((30 / 0.13) ** 2 * 0.26 * 0.75) * 100, rel_tol=1e-6
+    )
