@@ -1,0 +1,138 @@
+"""Burial: real people covered by real debris texture, recall and urgency per level.
+
+Data: ../shared/data/images (beside the checkout). Each of the 24 real_falls frames
+is buried by a seeded generator: rotated patches cut from the real brick and gravel
+photos in negatives (skimage, BSD), each with its own brightness and tint, are laid
+over a pile 1.6 times each person's box (so the pile's outline is not a body's)
+until about 50, 20 or 5 % of the box stays uncovered (100 %:
+the frame as it is). The buried share is measured on the box, not on the body's
+own pixels (the data has boxes, no masks), so a level is the body's visible share
+only roughly. A detection finds a person as in real_images (IoU >= 0.3 or its
+centre inside the box). The urgency a level should give: 100 % LIGHT, 50 % LIGHT or
+MEDIUM (the boundary), 20 % MEDIUM, 5 % CRITICAL; it is judged on the found people,
+without a camera geometry (photos have no pose), so visibility is measured against
+the body's extent as the detector estimates it.
+
+Targets (issue 14): recall >= 0.95 at 50 %, >= 0.8 at 20 %; urgency right in at
+least 80 % of the detections.
+
+Read with care: without geometry the body's extent is estimated from what shows,
+so a buried body reads as mostly visible (urgency right at 20 and 5 % is low here).
+Live, the camera model gives the area a whole lying adult covers at the floor point,
+which this benchmark cannot exercise on posed-less photos. The 5 % figure is what is
+honest: no model measured here finds a body that small.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+
+from companion.config import DetectorConfig
+from companion.vision import DetectorUnavailable, make_detector
+from companion.vision.visibility import assess
+from fusion.types import Urgency
+
+from .real_images import DATA, FALLS, hits_box, read_image
+
+TEXTURES = ("skimage_brick_gray.png", "skimage_gravel_gray.png")
+LEVELS_PCT = (100, 50, 20, 5)
+RIGHT_URGENCY = {
+    100: {Urgency.LIGHT},
+    50: {Urgency.LIGHT, Urgency.MEDIUM},
+    20: {Urgency.MEDIUM},
+    5: {Urgency.CRITICAL},
+}
+
+
+def bury(
+    image: np.ndarray,
+    boxes: list[list[float]],
+    visible_pct: float,
+    textures: list[np.ndarray],
+    seed: int,
+) -> np.ndarray:
+    """``image`` with debris patches over each box until ``visible_pct`` of it shows."""
+    rng = np.random.default_rng(seed)
+    out = image.copy()
+    h_img, w_img = image.shape[:2]
+    for x, y, w, h in boxes:
+        x0, y0 = max(0, int(x)), max(0, int(y))
+        x1, y1 = min(w_img, int(x + w)), min(h_img, int(y + h))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        covered = np.zeros((h_img, w_img), np.uint8)
+        box_area = (x1 - x0) * (y1 - y0)
+        for _ in range(2000):
+            if 100.0 * (1.0 - covered[y0:y1, x0:x1].sum() / box_area) <= visible_pct:
+                break
+            size = rng.uniform(0.15, 0.45) * max(x1 - x0, y1 - y0)
+            # Patches land on a pile 1.6x the box, so its outline is not the body's.
+            mx, my = 0.3 * (x1 - x0), 0.3 * (y1 - y0)
+            rect = (
+                (float(rng.uniform(x0 - mx, x1 + mx)), float(rng.uniform(y0 - my, y1 + my))),
+                (float(size * rng.uniform(0.5, 1.5)), float(size * rng.uniform(0.5, 1.0))),
+                float(rng.uniform(0.0, 180.0)),
+            )
+            poly = cv2.boxPoints(rect).astype(np.int32)
+            patch = np.zeros((h_img, w_img), np.uint8)
+            cv2.fillConvexPoly(patch, poly, 1)
+            tex = textures[int(rng.integers(len(textures)))]
+            ty = int(rng.integers(0, max(1, tex.shape[0] - h_img)))
+            tx = int(rng.integers(0, max(1, tex.shape[1] - w_img)))
+            crop = cv2.resize(tex[ty:, tx:], (w_img, h_img)).astype(np.float32)
+            tint = rng.uniform(0.5, 1.2) * np.array(
+                [rng.uniform(0.7, 1.0), rng.uniform(0.8, 1.0), rng.uniform(0.9, 1.2)], np.float32
+            )
+            debris = np.clip(crop * tint, 0, 255).astype(np.uint8)
+            sel = patch.astype(bool)
+            out[sel] = debris[sel]
+            covered |= patch
+    return out
+
+
+def run() -> dict[str, object]:
+    if not FALLS.exists():
+        return {"skipped": f"no data at {FALLS}"}
+    gt = json.loads((FALLS / "gt.json").read_text())
+    textures = [read_image(DATA / "negatives" / name) for name in TEXTURES]
+    try:
+        detector = make_detector(
+            DetectorConfig(backend="people", enhance=False), single_images=True
+        )
+    except DetectorUnavailable as exc:
+        return {"skipped": str(exc)}
+    result: dict[str, Any] = {}
+    for level in LEVELS_PCT:
+        people = found = judged = right = 0
+        for n, (rel, truth) in enumerate(sorted(gt.items())):
+            img = read_image(FALLS / rel)
+            if level < 100:
+                img = bury(img, truth["people"], level, textures, seed=1000 * level + n)
+            dets = detector.detect(img, None, 0.0)
+            matched = [False] * len(truth["people"])
+            for d in dets:
+                j = next(
+                    (i for i, b in enumerate(truth["people"]) if not matched[i] and hits_box(d, b)),
+                    None,
+                )
+                if j is None:
+                    continue
+                matched[j] = True
+                a = assess(d, None)
+                if a is not None:
+                    judged += 1
+                    right += a.urgency in RIGHT_URGENCY[level]
+            people += len(matched)
+            found += sum(matched)
+        result[f"recall_at_{level}pct"] = found / people
+        result[f"urgency_right_at_{level}pct"] = right / judged if judged else math.nan
+    return result
+
+
+if __name__ == "__main__":
+    print(json.dumps(run(), indent=1))
