@@ -19,7 +19,7 @@ least 80 % of the detections.
 Read with care: without geometry the body's extent is estimated from what shows,
 so a buried body reads as mostly visible (urgency right at 20 and 5 % is low here).
 Live, the camera model gives the area a whole lying adult covers at the floor point,
-which this benchmark cannot exercise on posed-less photos. The 5 % figure is what is
+which this benchmark cannot exercise on photos without a pose. The 5 % figure is what is
 honest: no model measured here finds a body that small.
 """
 
