@@ -33,11 +33,12 @@ import cv2
 import numpy as np
 
 from companion.config import DetectorConfig
+from companion.detectcmd import read_image
 from companion.vision import DetectorUnavailable, make_detector
 from companion.vision.visibility import assess
 from fusion.types import Urgency
 
-from .real_images import DATA, FALLS, hits_box, read_image
+from .real_images import DATA, FALLS, match
 
 TEXTURES = ("skimage_brick_gray.png", "skimage_gravel_gray.png")
 LEVELS_PCT = (100, 50, 20, 5)
@@ -114,21 +115,14 @@ def run() -> dict[str, object]:
             if level < 100:
                 img = bury(img, truth["people"], level, textures, seed=1000 * level + n)
             dets = detector.detect(img, None, 0.0)
-            matched = [False] * len(truth["people"])
-            for d in dets:
-                j = next(
-                    (i for i, b in enumerate(truth["people"]) if not matched[i] and hits_box(d, b)),
-                    None,
-                )
-                if j is None:
-                    continue
-                matched[j] = True
-                a = assess(d, None)
+            found_by, _ = match(dets, truth["people"])
+            for d in found_by:
+                a = None if d is None else assess(d, None)
                 if a is not None:
                     judged += 1
                     right += a.urgency in RIGHT_URGENCY[level]
-            people += len(matched)
-            found += sum(matched)
+            people += len(found_by)
+            found += sum(d is not None for d in found_by)
         result[f"recall_at_{level}pct"] = found / people
         result[f"urgency_right_at_{level}pct"] = right / judged if judged else math.nan
     return result

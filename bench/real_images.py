@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from companion.config import DetectorConfig
+from companion.detectcmd import read_image
 from companion.vision import Detector, DetectorUnavailable, make_detector
 from fusion.types import Detection
 
@@ -69,11 +70,20 @@ def hits_box(det: Detection, box: list[float]) -> bool:
     return inter / (w * h + dw * dh - inter) >= 0.3
 
 
-def read_image(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise OSError(f"cannot read {path}")
-    return img
+def match(dets: list[Detection], boxes: list[list[float]]) -> tuple[list[Detection | None], int]:
+    """The detection that found each box (None if none did), and the false detections."""
+    found_by: list[Detection | None] = [None] * len(boxes)
+    false = 0
+    for d in dets:
+        j = next(
+            (i for i, b in enumerate(boxes) if found_by[i] is None and hits_box(d, b)),
+            None,
+        )
+        if j is None:
+            false += 1
+        else:
+            found_by[j] = d
+    return found_by, false
 
 
 def darken(image: np.ndarray, seed: int) -> np.ndarray:
@@ -86,8 +96,8 @@ def darken(image: np.ndarray, seed: int) -> np.ndarray:
 
 def score_falls(detector: Detector, dark: bool = False) -> dict[str, Any]:
     gt = json.loads((FALLS / "gt.json").read_text())
-    tp = fp = found = found_lying = people = lying = 0
-    times = []
+    fp = found = found_lying = people = lying = 0
+    times: list[float] = []
     for rel, truth in sorted(gt.items()):
         img = read_image(FALLS / rel)
         if dark:
@@ -95,17 +105,9 @@ def score_falls(detector: Detector, dark: bool = False) -> dict[str, Any]:
         t0 = time.perf_counter()
         dets = detector.detect(img, None, 0.0)
         times.append((time.perf_counter() - t0) * 1000.0)
-        matched = [False] * len(truth["people"])
-        for d in dets:
-            j = next(
-                (i for i, b in enumerate(truth["people"]) if not matched[i] and hits_box(d, b)),
-                None,
-            )
-            if j is None:
-                fp += 1
-            else:
-                matched[j] = True
-                tp += 1
+        found_by, false = match(dets, truth["people"])
+        matched = [d is not None for d in found_by]
+        fp += false
         people += len(matched)
         found += sum(matched)
         lying += sum(truth["lying"])
@@ -113,7 +115,7 @@ def score_falls(detector: Detector, dark: bool = False) -> dict[str, Any]:
     return {
         "recall_lying": found_lying / lying,
         "recall_all": found / people,
-        "precision": tp / (tp + fp) if tp + fp else 1.0,
+        "precision": found / (found + fp) if found + fp else 1.0,
         "false": fp,
         "ms_median": statistics.median(times),
     }
