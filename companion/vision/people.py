@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -58,7 +58,7 @@ FACE_SPEC = ssd.SsdSpec(192, (4,), 6, 0.5, interpolated_scale=False)
 LANDMARK_PX = 256
 N_BODY_POINTS = 33
 # BlazePose indices: nose 0, shoulders 11/12, hips 23/24, knees 25/26, ankles 27/28.
-_SHOULDERS, _HIPS, _ANKLES = (11, 12), (23, 24), (27, 28)
+_SHOULDERS, _HIPS, _KNEES, _ANKLES = (11, 12), (23, 24), (25, 26), (27, 28)
 
 # Proportions of an adult (share of standing height): for a body's own extent in a
 # photo, and for the whole body behind a lone face or hand.
@@ -97,14 +97,13 @@ class PeopleParams:
 class _Body:
     score: float
     cues: set[str]
-    region: np.ndarray | None  # uint8 mask of the landmark crop in the frame
-    mask: np.ndarray | None  # bool, visible body pixels
+    region: np.ndarray  # uint8 mask of the body's region in the frame (crop or part box)
+    mask: np.ndarray  # bool, visible body pixels
     points: np.ndarray | None  # (33, 2) landmarks in frame pixels, when trusted
     hip_px: np.ndarray  # (2,) hip centre
     box: tuple[float, float, float, float]  # x0, y0, x1, y1
     part: str = ""  # "face" / "hand" for a lone part
     part_extent_px: float = 0.0  # the part's size, for a body's extent in a photo
-    extras: list[tuple[float, float, float, float]] = field(default_factory=list)
 
 
 def _mean_luma(image_bgr: np.ndarray) -> float:
@@ -260,7 +259,7 @@ class PeopleDetector:
                     break
                 hx = int(np.clip(kp[0, 0], 0, w - 1))
                 hy = int(np.clip(kp[0, 1], 0, h - 1))
-                if any(b.region is not None and b.region[hy, hx] for b in bodies):
+                if any(b.region[hy, hx] for b in bodies):
                     continue  # the same body, seen again by a turned pass
                 bodies.append(self._body(rgb, seg, d.score, kp, box))
         parts = [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
@@ -268,7 +267,7 @@ class PeopleDetector:
         for kind, (d, box, _kp) in parts:
             cx = int(np.clip((box[0] + box[2]) / 2, 0, w - 1))
             cy = int(np.clip((box[1] + box[3]) / 2, 0, h - 1))
-            owner = next((b for b in bodies if b.region is not None and b.region[cy, cx]), None)
+            owner = next((b for b in bodies if b.region[cy, cx]), None)
             if owner is not None:
                 if d.score >= p.part_support_score:
                     owner.cues.add(kind)
@@ -346,7 +345,7 @@ class PeopleDetector:
             head = pts[0]
             mid_sh = pts[list(_SHOULDERS)].mean(axis=0)
             mid_hip = pts[list(_HIPS)].mean(axis=0)
-            knees = pts[[25, 26]].mean(axis=0)
+            knees = pts[list(_KNEES)].mean(axis=0)
             ankles = pts[list(_ANKLES)].mean(axis=0)
             chain = [head, mid_sh, mid_hip, knees, ankles]
             length = sum(float(np.hypot(*(a - c))) for a, c in itertools.pairwise(chain))
@@ -368,10 +367,8 @@ class PeopleDetector:
         if x1 - x0 < 1.0 or y1 - y0 < 1.0:
             return None
         u, v = self._floor_pixel(b, geometry, w, h)
-        if b.mask is not None and b.mask.any():
-            visible = float(b.mask.sum())
-        else:  # no pixel mask: a person fills about half of its box (as dnn/hog assume)
-            visible = 0.5 * (x1 - x0) * (y1 - y0)
+        # No pixel of mask: a person fills about half of its box (as dnn/hog assume).
+        visible = float(b.mask.sum()) if b.mask.any() else 0.5 * (x1 - x0) * (y1 - y0)
         return Detection(
             t_mono_s=t_mono_s,
             u_px=u,
