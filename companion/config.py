@@ -24,6 +24,7 @@ from typing import Any, Literal
 from fusion.params import GeolocationParams, TrackerParams
 from mavlink_io.errors import LinkSpecError
 from mavlink_io.linkspec import parse_link
+from mavlink_io.vehicle import MAX_STREAM_RATE_HZ
 
 
 class ConfigError(Exception):
@@ -50,15 +51,12 @@ class VehicleConfig:
             raise ValueError(f"system_id = {self.system_id}: must be in 0..255 (0 = learn)")
         if not 1 <= self.component_id <= 255:
             raise ValueError(f"component_id = {self.component_id}: must be in 1..255")
-        for name in (
-            "heartbeat_timeout_s",
-            "attitude_rate_hz",
-            "local_position_rate_hz",
-            "global_position_rate_hz",
-            "reopen_max_backoff_s",
-            "pose_history_s",
-        ):
+        for name in ("heartbeat_timeout_s", "reopen_max_backoff_s", "pose_history_s"):
             _positive(self, name)
+        for name in ("attitude_rate_hz", "local_position_rate_hz", "global_position_rate_hz"):
+            value = getattr(self, name)
+            if not 0 < value <= MAX_STREAM_RATE_HZ:
+                raise ValueError(f"{name} = {value!r}: must be in (0, {MAX_STREAM_RATE_HZ:g}] Hz")
 
 
 @dataclass(frozen=True)
@@ -186,7 +184,6 @@ class ReportingConfig:
 
     statustext: bool = True  # STATUSTEXT that a stock QGC shows and speaks
     map_marker: bool = True  # CAMERA_IMAGE_CAPTURED at the victim (needs a global origin)
-    dialect_report: bool = True  # RESCUE_VICTIM_REPORT for rescue-hq
     status_period_s: float = 1.0  # RESCUE_STATUS and our HEARTBEAT period
     move_threshold_sigma: float = 1.0  # re-report after moving this many sigmas
     move_min_m: float = 0.3  # ... and at least this far
@@ -299,6 +296,8 @@ def _convert(tp: Any, value: Any, where: str, base_dir: Path) -> Any:
         raise _Bad
     if tp is float:
         if isinstance(value, int | float) and not isinstance(value, bool):
+            if not math.isfinite(value):  # TOML allows nan and inf; no setting means them
+                raise ConfigError(f"{where} = {value!r}: must be a finite number")
             return float(value)
         raise _Bad
     if tp is str:

@@ -571,6 +571,9 @@ class Service:
             if (reason := stop_reason()) is not None:
                 log.info("%s: stopping", reason)
                 self.stop.set()
+            elif not self.vehicle.alive:  # it catches its own errors; this is a last resort
+                self.failure = "vehicle link thread ended"
+                self.stop.set()
         self.notifier.stopping()
         log.info("stopping")
         for t in threads:

@@ -8,6 +8,12 @@
 
 Nothing outside mavlink_io reads a MAVLink field. A latitude/longitude of exactly
 0/0 is ArduPilot's "no position/origin yet" and never becomes a GlobalOrigin.
+
+The autopilot's messages are validated here, once, as they become typed values:
+``attitude``, ``local_position``, ``global_position`` and the ``parse_*`` origin
+functions raise ``BadField`` (a ValueError naming the message, field and value) for
+a value that is not finite or outside what a rover can report; the caller counts
+and logs it and uses nothing from that message.
 """
 
 from __future__ import annotations
@@ -36,6 +42,21 @@ FLAG_MOVED = 8
 FLAG_REQUESTED = 16
 
 CAPTURE_RESULT_SUCCESS = 1  # CAMERA_IMAGE_CAPTURED.capture_result: QGC draws a marker
+
+# What an autopilot on the ground can report; beyond is a corrupt or forged message.
+MAX_ANGLE_RAD = 2.0 * math.pi
+MAX_LOCAL_M = 100_000.0  # from the EKF origin
+MAX_SPEED_M_S = 500.0
+ALT_RANGE_M = (-1000.0, 20_000.0)  # AMSL: below the Dead Sea to above any mountain
+
+
+class BadField(ValueError):
+    """A field of an autopilot message is not finite or out of range."""
+
+
+def _check(msg_type: str, name: str, value: float, low: float, high: float) -> None:
+    if not (math.isfinite(value) and low <= value <= high):
+        raise BadField(f"{msg_type}.{name} = {value!r}: outside [{low:g}, {high:g}]")
 
 
 def deg_from_e7(value: int) -> float:
@@ -81,31 +102,35 @@ class GlobalPositionFields:
     vd_m_s: float
 
 
-def attitude(msg: MavMessage) -> AttitudeFields | None:
-    """ATTITUDE in SI units; None when a field is not finite."""
+def attitude(msg: MavMessage) -> AttitudeFields:
+    """ATTITUDE in SI units; BadField for an angle that is not finite or beyond 2 pi."""
     values = (msg.roll, msg.pitch, msg.yaw)
-    if not all(math.isfinite(v) for v in values):
-        return None
+    for name, value in zip(("roll", "pitch", "yaw"), values, strict=True):
+        _check("ATTITUDE", name, value, -MAX_ANGLE_RAD, MAX_ANGLE_RAD)
     return AttitudeFields(msg.time_boot_ms / MS_PER_S, *values)
 
 
-def local_position(msg: MavMessage) -> LocalPositionFields | None:
-    """LOCAL_POSITION_NED in SI units; None when a field is not finite."""
+def local_position(msg: MavMessage) -> LocalPositionFields:
+    """LOCAL_POSITION_NED in SI units; BadField for an absurd position or velocity."""
     values = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
-    if not all(math.isfinite(v) for v in values):
-        return None
+    for name, value in zip(("x", "y", "z"), values[:3], strict=True):
+        _check("LOCAL_POSITION_NED", name, value, -MAX_LOCAL_M, MAX_LOCAL_M)
+    for name, value in zip(("vx", "vy", "vz"), values[3:], strict=True):
+        _check("LOCAL_POSITION_NED", name, value, -MAX_SPEED_M_S, MAX_SPEED_M_S)
     return LocalPositionFields(msg.time_boot_ms / MS_PER_S, *values)
 
 
 def global_position(msg: MavMessage) -> GlobalPositionFields | None:
-    """GLOBAL_POSITION_INT in SI units; None when it is 0/0 (no position yet)."""
+    """GLOBAL_POSITION_INT in SI units; None when it is 0/0 (no position yet),
+    BadField for a latitude, longitude or altitude out of range."""
     if msg.lat == 0 and msg.lon == 0:
         return None
+    lat_deg, lon_deg, alt_m = _lat_lon_alt("GLOBAL_POSITION_INT", msg.lat, msg.lon, msg.alt)
     return GlobalPositionFields(
         t_boot_s=msg.time_boot_ms / MS_PER_S,
-        lat_deg=deg_from_e7(msg.lat),
-        lon_deg=deg_from_e7(msg.lon),
-        alt_m=msg.alt / MM_PER_M,
+        lat_deg=lat_deg,
+        lon_deg=lon_deg,
+        alt_m=alt_m,
         relative_alt_m=msg.relative_alt / MM_PER_M,
         vn_m_s=msg.vx / CM_PER_M,
         ve_m_s=msg.vy / CM_PER_M,
@@ -113,44 +138,74 @@ def global_position(msg: MavMessage) -> GlobalPositionFields | None:
     )
 
 
-def _origin(lat_e7: int, lon_e7: int, alt_mm: int) -> GlobalOrigin | None:
+def _lat_lon_alt(
+    msg_type: str, lat_e7: int, lon_e7: int, alt_mm: int
+) -> tuple[float, float, float]:
+    lat_deg, lon_deg, alt_m = deg_from_e7(lat_e7), deg_from_e7(lon_e7), alt_mm / MM_PER_M
+    _check(msg_type, "lat", lat_deg, -90.0, 90.0)
+    _check(msg_type, "lon", lon_deg, -180.0, 180.0)
+    _check(msg_type, "alt", alt_m, *ALT_RANGE_M)
+    return lat_deg, lon_deg, alt_m
+
+
+def _origin(msg_type: str, lat_e7: int, lon_e7: int, alt_mm: int) -> GlobalOrigin | None:
     if lat_e7 == 0 and lon_e7 == 0:
         return None
-    try:
-        return GlobalOrigin(deg_from_e7(lat_e7), deg_from_e7(lon_e7), alt_mm / MM_PER_M)
-    except ValueError:  # out of range: corrupt or bogus
+    return GlobalOrigin(*_lat_lon_alt(msg_type, lat_e7, lon_e7, alt_mm))
+
+
+def parse_gps_global_origin(msg: MavMessage) -> GlobalOrigin | None:
+    """GPS_GLOBAL_ORIGIN (the EKF origin itself); None for 0/0, BadField when out of range."""
+    return _origin("GPS_GLOBAL_ORIGIN", msg.latitude, msg.longitude, msg.altitude)
+
+
+def parse_home_position(msg: MavMessage) -> GlobalOrigin | None:
+    """The EKF origin implied by HOME_POSITION: home's lat/lon/alt minus its local
+    x, y, z. None for 0/0, BadField when out of range."""
+    home = _origin("HOME_POSITION", msg.latitude, msg.longitude, msg.altitude)
+    if home is None:
         return None
+    for name in ("x", "y", "z"):
+        _check("HOME_POSITION", name, getattr(msg, name), -MAX_LOCAL_M, MAX_LOCAL_M)
+    return _shift("HOME_POSITION", home, -msg.x, -msg.y, -msg.z)
 
 
 def origin_from_gps_global_origin(msg: MavMessage) -> GlobalOrigin | None:
-    """GPS_GLOBAL_ORIGIN (the EKF origin itself); None for 0/0."""
-    return _origin(msg.latitude, msg.longitude, msg.altitude)
+    """parse_gps_global_origin, with None for anything invalid too."""
+    try:
+        return parse_gps_global_origin(msg)
+    except BadField:
+        return None
 
 
 def origin_from_home_position(msg: MavMessage) -> GlobalOrigin | None:
-    """The EKF origin implied by HOME_POSITION: home's lat/lon/alt minus its local x, y, z."""
-    home = _origin(msg.latitude, msg.longitude, msg.altitude)
-    if home is None or not all(math.isfinite(v) for v in (msg.x, msg.y, msg.z)):
+    """parse_home_position, with None for anything invalid too."""
+    try:
+        return parse_home_position(msg)
+    except BadField:
         return None
-    return _shift(home, -msg.x, -msg.y, -msg.z)
 
 
 def origin_from_global_and_local(
     glob: GlobalPositionFields, local: LocalPositionFields
 ) -> GlobalOrigin | None:
-    """The EKF origin implied by the vehicle's global and local position at one instant."""
-    origin = _origin(e7_from_deg(glob.lat_deg), e7_from_deg(glob.lon_deg), round(glob.alt_m * 1e3))
-    if origin is None:
-        return None
-    return _shift(origin, -local.north_m, -local.east_m, -local.down_m)
+    """The EKF origin implied by the vehicle's global and local position at one
+    instant (both already validated); BadField if it lands out of range."""
+    at = GlobalOrigin(glob.lat_deg, glob.lon_deg, glob.alt_m)
+    return _shift("GLOBAL_POSITION_INT", at, -local.north_m, -local.east_m, -local.down_m)
 
 
-def _shift(at: GlobalOrigin, north_m: float, east_m: float, down_m: float) -> GlobalOrigin | None:
+def _shift(
+    msg_type: str, at: GlobalOrigin, north_m: float, east_m: float, down_m: float
+) -> GlobalOrigin:
     lat_deg, lon_deg, alt_m = ned_to_geodetic(at, north_m, east_m, down_m)
+    _check(msg_type, "derived origin lat", lat_deg, -90.0, 90.0)
+    _check(msg_type, "derived origin lon", lon_deg, -180.0, 180.0)
+    _check(msg_type, "derived origin alt", alt_m, *ALT_RANGE_M)
     try:
         return GlobalOrigin(lat_deg, lon_deg, alt_m)
-    except ValueError:
-        return None
+    except ValueError as exc:  # exactly 0/0
+        raise BadField(f"{msg_type}: {exc}") from None
 
 
 def _module(module: ModuleType | None) -> ModuleType:

@@ -10,22 +10,32 @@ clock through a ``BootClock``.
 origin itself), else from HOME_POSITION (home minus home's local position), else
 from GLOBAL_POSITION_INT minus LOCAL_POSITION_NED at the same boot time. 0/0 is
 never an origin.
+
+``TelemetryDecoder`` validates every message once as it becomes typed values
+(``convert``'s checks, and ``BootClock``'s refusal of a boot time off the current
+timeline): a refused message changes nothing, is counted in ``refused`` by type,
+and logged (the first of each type, then at most once per ``_LOG_EVERY_S``).
 """
 
 from __future__ import annotations
 
+import logging
 import threading
+from collections import Counter
 from dataclasses import dataclass
 
 from fusion.types import GlobalOrigin, PoseSample
 from mavlink_io import convert
-from mavlink_io.clock import BootClock
+from mavlink_io.clock import BootClock, Sample
 from mavlink_io.codec import MavMessage
+
+log = logging.getLogger(__name__)
 
 SOURCE_GPS_GLOBAL_ORIGIN = 3
 SOURCE_HOME_POSITION = 2
 SOURCE_DERIVED = 1
 _SAME_INSTANT_S = 0.02  # GLOBAL_POSITION_INT and LOCAL_POSITION_NED of one EKF step
+_LOG_EVERY_S = 10.0  # refused messages of one type are logged at most this often
 
 
 class PoseAssembler:
@@ -37,18 +47,11 @@ class PoseAssembler:
         self._attitude: convert.AttitudeFields | None = None
         self._position: convert.LocalPositionFields | None = None
 
-    @property
-    def latest_position(self) -> convert.LocalPositionFields | None:
-        return self._position
-
     def reset(self) -> None:
         self._attitude = None
         self._position = None
 
-    def on_attitude(self, msg: MavMessage) -> PoseSample | None:
-        att = convert.attitude(msg)
-        if att is None:
-            return None
+    def on_attitude(self, att: convert.AttitudeFields) -> PoseSample | None:
         self._attitude = att
         pos = self._position
         if pos is None or abs(att.t_boot_s - pos.t_boot_s) > self._max_gap_s:
@@ -65,10 +68,7 @@ class PoseAssembler:
             ),
         )
 
-    def on_local_position(self, msg: MavMessage) -> PoseSample | None:
-        pos = convert.local_position(msg)
-        if pos is None:
-            return None
+    def on_local_position(self, pos: convert.LocalPositionFields) -> PoseSample | None:
         self._position = pos
         att = self._attitude
         if att is None or abs(att.t_boot_s - pos.t_boot_s) > self._max_gap_s:
@@ -134,14 +134,14 @@ class OriginTracker:
             return changed
 
     def on_gps_global_origin(self, msg: MavMessage) -> bool:
-        """True when the origin changed."""
-        return self._offer(convert.origin_from_gps_global_origin(msg), SOURCE_GPS_GLOBAL_ORIGIN)
+        """True when the origin changed; BadField when the message is out of range."""
+        return self._offer(convert.parse_gps_global_origin(msg), SOURCE_GPS_GLOBAL_ORIGIN)
 
     def on_home_position(self, msg: MavMessage) -> bool:
-        return self._offer(convert.origin_from_home_position(msg), SOURCE_HOME_POSITION)
+        return self._offer(convert.parse_home_position(msg), SOURCE_HOME_POSITION)
 
-    def on_global_position(self, msg: MavMessage) -> None:
-        self._global = convert.global_position(msg)
+    def on_global_position(self, glob: convert.GlobalPositionFields | None) -> None:
+        self._global = glob
 
     def on_local_position(self, local: convert.LocalPositionFields | None) -> bool:
         """Derive an origin when a global and a local position describe one instant."""
@@ -196,6 +196,8 @@ class TelemetryDecoder:
         self.clock = clock if clock is not None else BootClock()
         self.origins = OriginTracker()
         self._assembler = PoseAssembler(self.clock)
+        self.refused: Counter[str] = Counter()  # by message type
+        self._last_log_s: dict[str, float] = {}
 
     def reset(self) -> None:
         self.clock.reset()
@@ -203,21 +205,56 @@ class TelemetryDecoder:
         self.origins.reset()
 
     def handle(self, msg: MavMessage, t_arrival_s: float) -> TelemetryUpdate:
+        try:
+            return self._handle(msg, t_arrival_s)
+        except convert.BadField as exc:
+            self._refuse(msg.get_type(), str(exc), t_arrival_s)
+            return TelemetryUpdate()
+
+    def _handle(self, msg: MavMessage, t_arrival_s: float) -> TelemetryUpdate:
         msg_id = msg.get_msgId()
         if msg_id in (_MSG_ATTITUDE, _MSG_LOCAL_POSITION_NED):
-            rebooted = self.clock.observe(msg.time_boot_ms / 1000.0, t_arrival_s)
+            # Fields first: a message with absurd fields must not move the clock either.
+            fields = (
+                convert.attitude(msg) if msg_id == _MSG_ATTITUDE else convert.local_position(msg)
+            )
+            sample = self.clock.observe(fields.t_boot_s, t_arrival_s)
+            if sample is Sample.REJECTED:
+                self._refuse(
+                    msg.get_type(),
+                    f"time_boot_ms = {msg.time_boot_ms} is off the autopilot's timeline",
+                    t_arrival_s,
+                )
+                return TelemetryUpdate()
+            rebooted = sample is Sample.NEW_BOOT
             if rebooted:
                 self._assembler.reset()
                 self.origins.reset()
-            if msg_id == _MSG_ATTITUDE:
-                return TelemetryUpdate(self._assembler.on_attitude(msg), rebooted)
-            pose = self._assembler.on_local_position(msg)
-            changed = self.origins.on_local_position(self._assembler.latest_position)
+            if isinstance(fields, convert.AttitudeFields):
+                return TelemetryUpdate(self._assembler.on_attitude(fields), rebooted)
+            pose = self._assembler.on_local_position(fields)
+            try:
+                changed = self.origins.on_local_position(fields)
+            except convert.BadField as exc:  # the pose stands; the derived origin does not
+                self._refuse("GLOBAL_POSITION_INT", str(exc), t_arrival_s)
+                changed = False
             return TelemetryUpdate(pose, rebooted, changed)
         if msg_id == _MSG_GLOBAL_POSITION_INT:
-            self.origins.on_global_position(msg)
+            self.origins.on_global_position(convert.global_position(msg))
         elif msg_id == _MSG_GPS_GLOBAL_ORIGIN:
             return TelemetryUpdate(origin_changed=self.origins.on_gps_global_origin(msg))
         elif msg_id == _MSG_HOME_POSITION:
             return TelemetryUpdate(origin_changed=self.origins.on_home_position(msg))
         return TelemetryUpdate()
+
+    def _refuse(self, msg_type: str, reason: str, t_s: float) -> None:
+        self.refused[msg_type] += 1
+        last = self._last_log_s.get(msg_type)
+        if last is None or not 0 <= t_s - last < _LOG_EVERY_S:
+            self._last_log_s[msg_type] = t_s
+            log.warning(
+                "autopilot message refused: %s (%d %s refused so far)",
+                reason,
+                self.refused[msg_type],
+                msg_type,
+            )

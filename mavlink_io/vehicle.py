@@ -28,6 +28,7 @@ Messages for us: RESCUE_ACK and RESCUE_OPERATOR_ACTION addressed to our
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -71,6 +72,7 @@ _TELEMETRY_IDS = frozenset(
 MAV_DATA_STREAM_POSITION = 6
 MAV_DATA_STREAM_EXTRA1 = 10
 
+MAX_STREAM_RATE_HZ = 200.0  # no autopilot streams faster; REQUEST_DATA_STREAM's rate is uint16
 _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
 _DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
 _INBOX_MAX = 1000
@@ -95,8 +97,20 @@ class VehicleSettings:
         if not 0 <= self.system_id <= 255 or not 1 <= self.component_id <= 255:
             raise ValueError("system_id must be 0..255 and component_id 1..255")
         for name in ("heartbeat_timeout_s", "heartbeat_period_s", "ack_timeout_s"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0")
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} = {value!r}: must be a positive number")
+        for name in (
+            "attitude_rate_hz",
+            "local_position_rate_hz",
+            "global_position_rate_hz",
+            "origin_rate_hz",
+        ):
+            value = getattr(self, name)
+            if not 0 <= value <= MAX_STREAM_RATE_HZ:  # also refuses NaN
+                raise ValueError(
+                    f"{name} = {value!r}: must be in [0, {MAX_STREAM_RATE_HZ:g}] (0: stop it)"
+                )
 
 
 @dataclass
@@ -111,6 +125,7 @@ class VehicleCounters:
     inbox_dropped: int = 0
     handler_errors: int = 0
     read_errors: int = 0
+    loop_errors: int = 0  # a bug in the loop itself, caught so the thread keeps going
 
 
 @dataclass(frozen=True)
@@ -216,7 +231,8 @@ class VehicleLink:
             clock_offset_s=self.clock.offset_s if self.clock.synced else None,
             stream_method=method,
             last_pose=self.poses.latest(),
-            counters=dict(vars(self.counters)),
+            # refused: autopilot messages with bad fields or an off-timeline boot time
+            counters={**vars(self.counters), "refused": self.telemetry.refused.total()},
         )
 
     def send(self, msg: MavMessage) -> bool:
@@ -258,24 +274,38 @@ class VehicleLink:
 
     # ----------------------------------------------------------------- the loop
 
+    @property
+    def alive(self) -> bool:
+        """False once the reader thread has ended (after close(), or a bug)."""
+        return self._thread.is_alive()
+
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
-                data = self.link.read(_TICK_S)
-            except LinkError as exc:
-                if self._stop.is_set():
-                    break
-                self.counters.read_errors += 1
-                log.warning("%s: %s", self.link.name, exc)
-                self._stop.wait(0.5)  # a non-reconnecting link that broke: do not spin
-                data = b""
-            now = time.monotonic()
-            if data:
-                for msg in self.codec.feed(data):
-                    self._dispatch(msg, now)
-            self._tick(time.monotonic())
-            with self._changed:
-                self._changed.notify_all()
+                self._pass()
+            except Exception:  # a bug must not stop the vehicle link: nothing restarts it
+                self.counters.loop_errors += 1
+                log.exception("%s: vehicle link loop failed; continuing", self.link.name)
+                self._stop.wait(_TICK_S)
+
+    def _pass(self) -> None:
+        """One pass of the reader loop: read, dispatch, tick, notify waiters."""
+        try:
+            data = self.link.read(_TICK_S)
+        except LinkError as exc:
+            if self._stop.is_set():
+                return
+            self.counters.read_errors += 1
+            log.warning("%s: %s", self.link.name, exc)
+            self._stop.wait(0.5)  # a non-reconnecting link that broke: do not spin
+            data = b""
+        now = time.monotonic()
+        if data:
+            for msg in self.codec.feed(data):
+                self._dispatch(msg, now)
+        self._tick(time.monotonic())
+        with self._changed:
+            self._changed.notify_all()
 
     def _dispatch(self, msg: MavMessage, now: float) -> None:
         self.counters.messages_in += 1

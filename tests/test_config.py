@@ -74,6 +74,12 @@ def test_relative_paths_are_relative_to_the_config_file(tmp_path: Path) -> None:
         ("[signing]\nenabled = true\n", "key_file: required when enabled = true"),
         ("[hq]\ntunnel = 1\n", "hq.tunnel = 1: expected true or false"),
         ("[camera]\nwidth_px = 640\nwidth_px = 320\n", "not valid TOML"),
+        ("[camera.mount]\npitch_deg = nan\n", "camera.mount.pitch_deg = nan: must be a finite"),
+        ("[camera]\nfx_px = inf\nfy_px = 500.0\n", "camera.fx_px = inf: must be a finite"),
+        ("[tracker]\ngate_chi2 = -inf\n", "tracker.gate_chi2 = -inf: must be a finite"),
+        ("[vehicle]\nattitude_rate_hz = 100000\n", "attitude_rate_hz = 100000.0: must be in"),
+        ("[vehicle]\nglobal_position_rate_hz = 0\n", "global_position_rate_hz = 0.0: must"),
+        ("[reporting]\ndialect_report = true\n", "unknown key 'dialect_report'"),
     ],
 )
 def test_bad_values_name_key_and_value(tmp_path: Path, toml: str, expected: str) -> None:
@@ -107,6 +113,7 @@ def _run_check(path: Path) -> subprocess.CompletedProcess[str]:
             "not a readable YAML/XML calibration",
         ),
         ("missing_calibration", '[camera]\ncalibration_file = "nope.yaml"\n', "cannot read"),
+        ("infinite_fx", "[camera]\nfx_px = inf\nfy_px = inf\n", "camera.fx_px = inf"),
     ],
 )
 def test_console_script_exits_2_with_one_line(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mavlink_io.clock import BootClock
+from mavlink_io.clock import BootClock, Sample
 from mavlink_io.errors import ClockNotSynced
 
 TRUE_OFFSET_S = 1234.5678  # companion monotonic minus autopilot boot time
@@ -67,10 +67,28 @@ def test_reboot_resets_the_estimate() -> None:
     assert not clock.synced
     with pytest.raises(ClockNotSynced):
         _ = clock.offset_s
-    assert clock.observe(300.0, 1000.0) is False
+    assert clock.observe(300.0, 1000.0) is Sample.OK
     assert clock.offset_s == pytest.approx(700.0)
-    assert clock.observe(299.5, 1000.1) is False  # small reordering: not a reboot
-    assert clock.observe(2.0, 1010.0) is True  # boot time jumped back: rebooted
+    assert clock.observe(299.5, 1000.1) is Sample.OK  # small reordering: not a reboot
+    # Boot time jumped back: a new boot once three samples agree, not on the first.
+    assert clock.observe(2.0, 1010.0) is Sample.REJECTED
+    assert clock.observe(2.1, 1010.1) is Sample.REJECTED
+    assert clock.offset_s == pytest.approx(700.0)
+    assert clock.observe(2.2, 1010.2) is Sample.NEW_BOOT
     assert clock.reboots == 1
     assert clock.offset_s == pytest.approx(1008.0)  # the old, smaller offset is gone
-    assert clock.last_boot_s == 2.0
+    assert clock.last_boot_s == pytest.approx(2.2)
+
+
+def test_lone_absurd_samples_are_rejected_and_change_nothing() -> None:
+    clock = BootClock(reboot_tolerance_s=1.0)
+    for i in range(10):
+        assert clock.observe(300.0 + i * 0.1, 1000.0 + i * 0.1) is Sample.OK
+    # One far ahead of our clock (latency cannot explain it), one back at zero, then
+    # two that disagree with each other: none is confirmed.
+    for boot_s, mono_s in ((4e6, 1001.0), (0.0, 1001.05), (50.0, 1001.1), (10.0, 1001.15)):
+        assert clock.observe(boot_s, mono_s) is Sample.REJECTED
+    assert clock.observe(301.2, 1001.2) is Sample.OK
+    assert (clock.reboots, clock.rejected) == (0, 4)
+    assert clock.offset_s == pytest.approx(700.0)
+    assert clock.last_boot_s == pytest.approx(301.2)

@@ -198,3 +198,45 @@ def test_dialect_messages_for_us_direct_and_tunnelled(
     assert (first.get_type(), first.seq) == ("RESCUE_ACK", 5)
     assert (second.get_type(), second.action_seq) == ("RESCUE_OPERATOR_ACTION", 9)
     assert vehicle.inbox.empty()
+
+
+def test_absurd_stream_rate_is_refused_before_the_link_starts() -> None:
+    # REQUEST_DATA_STREAM carries the rate as uint16: 100000 Hz killed the reader thread.
+    with pytest.raises(ValueError, match="attitude_rate_hz = 100000"):
+        VehicleSettings(attitude_rate_hz=100000.0)
+    with pytest.raises(ValueError, match="origin_rate_hz = nan"):
+        VehicleSettings(origin_rate_hz=float("nan"))
+
+
+def test_origin_with_absurd_altitude_is_refused_and_counted(
+    rig: tuple[VehicleLink, FakeAutopilot],
+) -> None:
+    vehicle, ap = rig
+    vehicle.wait_for_state(lambda s: s.origin is not None, timeout_s=3.0)
+    good = vehicle.origin
+    # INT32_MIN mm: a victim's altitude below it no longer fits the report's int32.
+    ap.conn.mav.gps_global_origin_send(481234567, -1241234567, -(2**31))
+    ap.conn.mav.home_position_send(481234567, -1241234567, -(2**31), 0, 0, 0, [1, 0, 0, 0], 0, 0, 0)
+    state = vehicle.wait_for_state(lambda s: s.counters["refused"] >= 2, timeout_s=3.0)
+    assert state.origin == good
+    assert vehicle.telemetry.refused["GPS_GLOBAL_ORIGIN"] == 1
+    assert vehicle.alive
+
+
+def test_one_absurd_boot_time_changes_nothing(rig: tuple[VehicleLink, FakeAutopilot]) -> None:
+    vehicle, ap = rig
+    vehicle.wait_for_state(lambda s: s.last_pose is not None, timeout_s=3.0)
+    offset_s = vehicle.clock.offset_s
+    poses_before = vehicle.counters.poses
+    for boot_ms in (4_000_000_000, 0):  # far ahead of the clock, then back to zero
+        ap.conn.mav.attitude_send(boot_ms, 0.0, 0.0, 0.0, 0, 0, 0)
+        vehicle.wait_for_state(
+            lambda s, n=vehicle.telemetry.refused["ATTITUDE"]: s.counters["refused"] > n,
+            timeout_s=3.0,
+        )
+    vehicle.wait_for_state(lambda s: s.counters["poses"] > poses_before + 10, timeout_s=3.0)
+    assert vehicle.counters.reboots == 0
+    assert vehicle.clock.offset_s == pytest.approx(offset_s, abs=0.01)
+    assert vehicle.origin is not None
+    pose = vehicle.poses.latest()
+    assert pose is not None and 90.0 < pose.t_boot_s < 200.0
