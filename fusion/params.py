@@ -76,6 +76,13 @@ class TrackerParams:
     # An unmatched observation this close (chi-square, 2 dof; 18.42 = 99.99 %) to an
     # existing track is an outlier or duplicate of it and starts no new track.
     new_track_exclusion_chi2: float = 18.42
+    # A victim under rubble does not move: its uncertainty grows by process noise only
+    # for this long after its last detection, however long it stays out of view.
+    max_unseen_growth_s: float = 60.0
+    # Never associate, exclude or merge beyond this distance, whatever the chi-square
+    # says: a person (1.7 m long) and the fix error of a partly buried one at range
+    # stay within it (2 m split one victim of the guard mission seed:2 in two).
+    max_match_distance_m: float = 3.0
 
     def __post_init__(self) -> None:
         _all_finite(self)
@@ -101,6 +108,8 @@ class TrackerParams:
             "new_track_exclusion_chi2",
             "must be >= gate_chi2",
         )
+        _require(self.max_unseen_growth_s >= 0.0, self, "max_unseen_growth_s", "must be >= 0")
+        _require(self.max_match_distance_m > 0.0, self, "max_match_distance_m", "must be > 0")
         _require(
             0.0 <= self.urgency_hysteresis_pct < 10.0,
             self,

@@ -7,11 +7,19 @@ Each track estimates a static floor point x = [north, east] with
     H = I                      observations are floor points
     R = observation covariance from geolocation
 
+Time: a victim under rubble does not move, so being out of view teaches nothing
+about where it is. The random walk runs only for ``max_unseen_growth_s`` after a
+track's last detection: P grows by at most q times that, however long the absence
+(15 minutes elsewhere, or a restart the next day), so an old track never becomes
+broad enough to match everything. And no pair further apart than
+``max_match_distance_m`` is ever associated, excluded or merged, whatever its
+chi-square: that is the metric bound on how far a person's fix strays from itself.
+
 Per ``update`` (one processed camera frame, with or without detections):
 
 1. predict every track to ``now_unix_s``;
 2. gate each (track, observation) pair by the Mahalanobis distance
-   d^2 = y^T S^-1 y, S = P + R, against ``gate_chi2``; assign with the Hungarian
+   d^2 = y^T S^-1 y, S = P + R, against ``gate_chi2`` (and the metric bound); assign with the Hungarian
    method over the gated pairs, cost d^2 + ln det S (the negative log-likelihood,
    so a broad track does not steal a detection from a sharp one);
 3. matched tracks are updated and gain ``hit_log_odds`` (a RESCUED or FALSE_ALARM
@@ -62,7 +70,15 @@ from fusion.registry import EventKind, TrackEvent, Victim, moved_beyond
 from fusion.types import Cov2, Observation, TrackState, Urgency
 from fusion.urgency import classify, weighted_median
 
-__all__ = ["EventKind", "TrackEvent", "Victim", "VictimTracker", "kalman_update", "moved_beyond"]
+__all__ = [
+    "EventKind",
+    "TrackEvent",
+    "Victim",
+    "VictimTracker",
+    "kalman_update",
+    "mahalanobis2",
+    "moved_beyond",
+]
 
 log = logging.getLogger(__name__)
 
@@ -207,8 +223,9 @@ class VictimTracker:
         detection of it; absorbed, if that track is RESCUED/FALSE_ALARM) and those
         within ``merge_chi2`` of another observation starting a track in this frame."""
         paired_obs = {j for _, j in pairs}
+        near = self._near(live, observations)
         excluded = (
-            np.any(d2 <= self._params.new_track_exclusion_chi2, axis=0)
+            np.any((d2 <= self._params.new_track_exclusion_chi2) & near, axis=0)
             if len(live)
             else np.zeros(len(observations), dtype=bool)
         )
@@ -219,7 +236,7 @@ class VictimTracker:
             if excluded[j]:
                 log.debug("observation at (%.2f, %.2f) near a track", obs.north_m, obs.east_m)
                 continue
-            if any(_obs_d2(obs, other) <= self._params.merge_chi2 for other in started):
+            if any(self._same_point(obs, other) for other in started):
                 log.debug("duplicate new detection at (%.2f, %.2f)", obs.north_m, obs.east_m)
                 continue
             started.append(obs)
@@ -235,8 +252,10 @@ class VictimTracker:
         if not live:
             return np.zeros((0, 2, 2))
         t_filter = np.array([t.t_filter_unix_s for t in live])
-        # dt <= 0: the wall clock stepped back, or the same frame: nothing to predict
-        dt = np.maximum(0.0, now_unix_s - t_filter)
+        # The random walk runs only up to max_unseen_growth_s after the last detection;
+        # dt <= 0: the wall clock stepped back, or the same frame: nothing to predict.
+        growth_end = np.array([t.last_seen_unix_s for t in live]) + self._params.max_unseen_growth_s
+        dt = np.maximum(0.0, np.minimum(now_unix_s, growth_end) - t_filter)
         p = np.array([t.kf.P for t in live])
         p = p + (self._params.process_noise_m2_s * dt)[:, None, None] * np.eye(2)
         for t, p_t in zip(live, p, strict=True):
@@ -255,19 +274,28 @@ class VictimTracker:
         x = np.array([t.x for t in live])  # (T, 2)
         z = np.array([(o.north_m, o.east_m) for o in observations])  # (O, 2)
         r = np.array([o.cov_ne_m2 for o in observations])  # (O, 2, 2)
-        # S = P + R for every pair; y = z - x
-        s = p[:, None, :, :] + r[None, :, :, :]
-        y = z[None, :, :] - x[:, None, :]
-        det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
-        # d^2 = y^T S^-1 y with the 2x2 inverse written out
-        d2 = (
-            s[..., 1, 1] * y[..., 0] ** 2
-            - (s[..., 0, 1] + s[..., 1, 0]) * y[..., 0] * y[..., 1]
-            + s[..., 0, 0] * y[..., 1] ** 2
-        ) / det
-        gated = d2 <= self._params.gate_chi2
+        # S = P + R and y = z - x for every pair
+        d2, det = mahalanobis2(z[None, :, :] - x[:, None, :], p[:, None] + r[None, :])
+        gated = (d2 <= self._params.gate_chi2) & self._near(live, observations)
         cost = np.where(gated, d2 + np.log(det), _INFEASIBLE)
         return _assign(gated, cost), d2
+
+    def _near(self, live: list[_Track], observations: Sequence[Observation]) -> np.ndarray:
+        """(T, O): which track-observation pairs are within max_match_distance_m."""
+        if not live or not observations:
+            return np.zeros((len(live), len(observations)), dtype=bool)
+        x = np.array([t.x for t in live])
+        z = np.array([(o.north_m, o.east_m) for o in observations])
+        dist = np.linalg.norm(z[None, :, :] - x[:, None, :], axis=-1)
+        return np.asarray(dist <= self._params.max_match_distance_m)
+
+    def _same_point(self, a: Observation, b: Observation) -> bool:
+        """Two observations of one frame that are one victim detected twice."""
+        dz = np.array([a.north_m - b.north_m, a.east_m - b.east_m])
+        if float(np.hypot(*dz)) > self._params.max_match_distance_m:
+            return False
+        d2, _ = mahalanobis2(dz, np.array(a.cov_ne_m2) + np.array(b.cov_ne_m2))
+        return float(d2) <= self._params.merge_chi2
 
     @staticmethod
     def _correct(
@@ -352,7 +380,7 @@ class VictimTracker:
         for t in live:
             if t.state == TrackState.TENTATIVE:
                 if t.log_odds >= p.confirm_log_odds:
-                    if _closest_pair([t], confirmed, p.merge_chi2) is None:
+                    if _closest_pair([t], confirmed, p.merge_chi2, p.max_match_distance_m) is None:
                         self._confirm(t, events)
                         confirmed.append(t)
                     # else: a stray fix of a known victim; it waits, tentative, until
@@ -382,7 +410,8 @@ class VictimTracker:
     def _merge(self, events: list[TrackEvent]) -> None:
         while True:
             confirmed = [t for t in self._tracks.values() if t.state in _CONFIRMED]
-            pair = _closest_pair(confirmed, confirmed, self._params.merge_chi2)
+            p = self._params
+            pair = _closest_pair(confirmed, confirmed, p.merge_chi2, p.max_match_distance_m)
             if pair is None:
                 return
             a, b = pair
@@ -535,33 +564,36 @@ def _assign(gated: np.ndarray, cost: np.ndarray) -> list[tuple[int, int]]:
     return pairs
 
 
-def _obs_d2(a: Observation, b: Observation) -> float:
-    """d^2 = dz^T (R_a + R_b)^-1 dz between two observations."""
-    s = np.array(a.cov_ne_m2) + np.array(b.cov_ne_m2)
-    dz = np.array([a.north_m - b.north_m, a.east_m - b.east_m])
-    return float(dz @ np.linalg.solve(s, dz))
+def mahalanobis2(dx: FloatArray, s: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Squared Mahalanobis distances d^2 = dx^T S^-1 dx and det S, for 2-vectors.
 
-
-def _closest_pair(
-    first: list[_Track], second: list[_Track], merge_chi2: float
-) -> tuple[_Track, _Track] | None:
-    """The pair (one from each list, two different tracks) with the smallest
-    d^2 = dx^T (P1 + P2)^-1 dx, if within merge_chi2."""
-    if not first or not second:
-        return None
-    x1, x2 = np.array([t.x for t in first]), np.array([t.x for t in second])
-    p1, p2 = np.array([t.kf.P for t in first]), np.array([t.kf.P for t in second])
-    s = p1[:, None] + p2[None, :]
-    dx = x1[:, None, :] - x2[None, :, :]
+    ``dx`` (..., 2) and ``s`` (..., 2, 2) broadcast like numpy arrays; the 2x2 inverse
+    is written out (one vectorised expression for every pair, no per-pair solve).
+    """
     det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
     d2 = (
         s[..., 1, 1] * dx[..., 0] ** 2
         - (s[..., 0, 1] + s[..., 1, 0]) * dx[..., 0] * dx[..., 1]
         + s[..., 0, 0] * dx[..., 1] ** 2
     ) / det
+    return d2, det
+
+
+def _closest_pair(
+    first: list[_Track], second: list[_Track], merge_chi2: float, max_distance_m: float
+) -> tuple[_Track, _Track] | None:
+    """The pair (one from each list, two different tracks) with the smallest
+    d^2 = dx^T (P1 + P2)^-1 dx, if within merge_chi2 and max_distance_m."""
+    if not first or not second:
+        return None
+    x1, x2 = np.array([t.x for t in first]), np.array([t.x for t in second])
+    p1, p2 = np.array([t.kf.P for t in first]), np.array([t.kf.P for t in second])
+    dx = x1[:, None, :] - x2[None, :, :]
+    d2, _ = mahalanobis2(dx, p1[:, None] + p2[None, :])
     ids1 = np.array([t.track_id for t in first])
     ids2 = np.array([t.track_id for t in second])
     d2[ids1[:, None] == ids2[None, :]] = np.inf  # a track is not its own twin
+    d2[np.linalg.norm(dx, axis=-1) > max_distance_m] = np.inf  # too far to be one person
     k = int(np.argmin(d2))
     i, j = divmod(k, d2.shape[1])
     if d2[i, j] > merge_chi2:

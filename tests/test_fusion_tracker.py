@@ -324,3 +324,52 @@ def test_batched_update_equals_filterpy() -> None:
         kf.update(z[i], R=r[i])
         np.testing.assert_allclose(x_new[i], kf.x.reshape(2), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(p_new[i], kf.P, rtol=1e-12, atol=1e-14)
+
+
+def test_victims_4_m_apart_stay_apart_after_15_minutes_out_of_view() -> None:
+    tracker = VictimTracker(PARAMS)
+    a = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    b = confirmed_victim(tracker, 4.0, 0.0, 20.0)
+    later = 20.0 + 15 * 60.0
+    # 15 min of frames that look elsewhere, then back in view: each victim is seen
+    # where it was.
+    events = tracker.update([], T0 + later - 1.0, never)
+    for k in range(5):
+        t = later + k
+        events += tracker.update([obs(0.0, 0.0, t), obs(4.0, 0.0, t)], T0 + t, always)
+    assert not [e for e in events if e.kind == EventKind.MERGED]
+    assert tracker.victim(a).state == TrackState.CONFIRMED
+    assert tracker.victim(b).state == TrackState.CONFIRMED
+    assert tracker.victim(a).north_m == pytest.approx(0.0, abs=0.1)
+    assert tracker.victim(b).north_m == pytest.approx(4.0, abs=0.1)
+    # The uncertainty of a static victim does not grow without limit while unseen.
+    assert tracker.victim(a).sigma_m < 0.5
+
+
+def test_victims_20_m_apart_stay_apart_after_a_restart_the_next_day() -> None:
+    tracker = VictimTracker(PARAMS)
+    a = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    b = confirmed_victim(tracker, 20.0, 0.0, 20.0)
+    restored = VictimTracker.restore(PARAMS, tracker.snapshot())
+    next_day = 40.0 + 86_400.0
+    events = restored.update([obs(20.0, 0.0, next_day)], T0 + next_day, always)
+    assert not [e for e in events if e.kind == EventKind.MERGED]
+    assert restored.victim(a).north_m == pytest.approx(0.0, abs=0.1)
+    assert restored.victim(b).north_m == pytest.approx(20.0, abs=0.1)
+    assert restored.victim(a).sigma_m < 0.5
+
+
+def test_never_associated_or_merged_beyond_the_distance_in_metres() -> None:
+    # Even with uncertainties so broad that chi-square would accept anything.
+    tracker = VictimTracker(PARAMS)
+    a = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    seen = tracker.victim(a).observations
+    far = PARAMS.max_match_distance_m + 0.5
+    for k in range(10):
+        t = 20.0 + k
+        tracker.update([obs(far, 0.0, t, var_m2=50.0)], T0 + t, always)
+    victim = tracker.victim(a)
+    assert victim.north_m == pytest.approx(0.0, abs=0.05)
+    assert victim.observations == seen  # the far detections are not its own
+    others = [v for v in tracker.victims(include_tentative=True) if v.track_id != victim.track_id]
+    assert len(others) == 1 and others[0].north_m == pytest.approx(far, abs=0.01)
