@@ -9,8 +9,11 @@ Threads (docs/ARCHITECTURE.md):
 - reporter: outbox sends and resends, people-facing messages, RESCUE_STATUS.
 
 The processing thread commits a frame's consequences (tracker, what was reported,
-the new reports) in one SQLite transaction before the reporter sends anything, so
-after a crash nothing sent is unknown and nothing unacknowledged is lost.
+the new reports and their outbox entries) in one SQLite transaction; the outbox
+schedules the reports only after that commit, so the reporter never sends what is
+not on disk, and after a crash nothing unacknowledged is lost. Acknowledgements
+arrive on the link threads, which never write SQLite: they are queued to the
+reporter, the one owner of the outbox.
 """
 
 from __future__ import annotations
@@ -101,6 +104,30 @@ class FrameMailbox:
             return frame
 
 
+class FrameStats:
+    """Processed-frame times and vision durations: written by processing, read by
+    the reporter, so every access holds the lock (iterating a deque that another
+    thread appends to raises "deque mutated during iteration")."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._vision_ms: deque[float] = deque(maxlen=50)
+        self._processed: deque[float] = deque(maxlen=100)  # monotonic times
+
+    def add(self, t_mono_s: float, vision_ms: float | None) -> None:
+        with self._lock:
+            self._processed.append(t_mono_s)
+            if vision_ms is not None:
+                self._vision_ms.append(vision_ms)
+
+    def summary(self, now_mono_s: float, window_s: float = 5.0) -> tuple[float, float]:
+        """(frames per second over the last ``window_s``, median vision ms)."""
+        with self._lock:
+            recent = sum(1 for t in self._processed if now_mono_s - t <= window_s)
+            vision_ms = statistics.median(self._vision_ms) if self._vision_ms else 0.0
+        return recent / window_s, vision_ms
+
+
 class Service:
     """The companion's runtime. Build, ``run(stop)``, and it cleans up on return."""
 
@@ -140,12 +167,12 @@ class Service:
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
         self.people: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
+        self.acks: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
         self.dedupe = Deduplicator()
         self.chunk_ids = statustext.ChunkIds()
         self._wake_reporter = threading.Event()
         self._camera_ok = False
-        self._vision_ms: deque[float] = deque(maxlen=50)
-        self._processed: deque[float] = deque(maxlen=100)  # monotonic times of processed frames
+        self.stats = FrameStats()
         self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
         self._floor_down_m = config.geolocation.floor_down_m
         self._origin: GlobalOrigin | None = None  # the origin reports were last made with
@@ -212,18 +239,28 @@ class Service:
         sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
         origin = self.vehicle.origin
         now = time.time()
-        with self.store.transaction():
-            for d in decisions:
-                self._report_seq += 1
-                report = d.victim.to_report(sysid, self._floor_down_m, origin)
-                msg = convert.victim_report_to_msg(
-                    report, self._report_seq, d.flags, now, d.victim.merged_into, self._m
-                )
-                self.outbox.submit(msg, send=False)
-                self._queue_people(d, report)
-            self.store.set("tracker", self.tracker.snapshot())
-            self.store.set("reported", self.policy.snapshot())
-            self.store.set("report_seq", self._report_seq)
+        seq = self._report_seq
+        people: list[tuple[Decision, Any]] = []
+        try:
+            with self.store.transaction():
+                for d in decisions:
+                    seq += 1
+                    report = d.victim.to_report(sysid, self._floor_down_m, origin)
+                    msg = convert.victim_report_to_msg(
+                        report, seq, d.flags, now, d.victim.merged_into, self._m
+                    )
+                    self.outbox.stage(msg)  # in this transaction; scheduled after it
+                    people.append((d, report))
+                self.store.set("tracker", self.tracker.snapshot())
+                self.store.set("reported", self.policy.snapshot())
+                self.store.set("report_seq", seq)
+        except BaseException:
+            self.outbox.discard()
+            raise
+        self._report_seq = seq
+        self.outbox.publish()  # committed: now the reporter may send them
+        for d, report in people:
+            self._queue_people(d, report)
         self._wake_reporter.set()
 
     def _queue_people(self, d: Decision, report: Any) -> None:
@@ -272,10 +309,14 @@ class Service:
         return MAV_STATE_ACTIVE if self.vehicle.poses.latest() is not None else MAV_STATE_STANDBY
 
     def _on_dialect(self, msg: MavMessage) -> None:
-        """From a link thread: acknowledgements apply at once, actions go to processing."""
+        """From a link thread, which never writes SQLite: acknowledgements go to the
+        reporter (the outbox's owner), operator actions to processing."""
         if msg.get_msgId() == dialect.RESCUE_ACK_ID:
-            if self.outbox.on_ack(msg):
-                log.debug("report %d acknowledged", msg.seq)
+            try:
+                self.acks.put_nowait(msg)
+            except queue.Full:  # the report is resent and acknowledged again
+                log.warning("acknowledgement queue full; ack of %d dropped", msg.seq)
+            self._wake_reporter.set()
             return
         try:
             self.actions.put_nowait(msg)
@@ -392,10 +433,11 @@ class Service:
             self._commit(decisions)
 
     def _after_frame(self, outcome: FrameOutcome) -> None:
+        vision_ms = None
         if outcome.pose is not None:
             self._floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
-            self._vision_ms.append(outcome.vision_ms)
-        self._processed.append(time.monotonic())
+            vision_ms = outcome.vision_ms
+        self.stats.add(time.monotonic(), vision_ms)
         victims = self.tracker.victims(include_tentative=True)
         confirmed = sum(
             1 for v in victims if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
@@ -456,6 +498,7 @@ class Service:
         next_summary = time.monotonic() + _SUMMARY_PERIOD_S
         was_connected = False
         while not self.stop.is_set():
+            self._apply_acks()
             self.outbox.poll()
             while True:
                 try:
@@ -477,6 +520,15 @@ class Service:
             wait = next_status - now if due is None else min(due, next_status - now)
             self._wake_reporter.wait(max(0.01, wait))
             self._wake_reporter.clear()
+
+    def _apply_acks(self) -> None:
+        while True:
+            try:
+                ack = self.acks.get_nowait()
+            except queue.Empty:
+                return
+            if self.outbox.on_ack(ack):
+                log.debug("report %d acknowledged", ack.seq)
 
     def _link_changed(self, connected: bool) -> None:
         if connected:
@@ -505,10 +557,8 @@ class Service:
 
     def _send_status(self, now: float) -> None:
         m = self._m
-        recent = [t for t in self._processed if now - t <= 5.0]
-        fps = len(recent) / 5.0
+        fps, vision_ms = self.stats.summary(now)
         drop_pct = 100.0 * self.mailbox.dropped / max(1, self.mailbox.received)
-        vision_ms = statistics.median(self._vision_ms) if self._vision_ms else 0.0
         flags = 0
         if self.vehicle.connected:
             flags |= m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
@@ -587,6 +637,7 @@ class Service:
     def close(self) -> None:
         """Save, then close everything; safe twice."""
         try:
+            self._apply_acks()  # heard before the stop: do not resend them after a restart
             with self.store.transaction():
                 self.store.set("tracker", self.tracker.snapshot())
                 self.store.set("reported", self.policy.snapshot())

@@ -9,6 +9,22 @@ a restart resends what was never acknowledged. Each resend is re-encoded by the
 caller's codec: a fresh sequence number and signature timestamp, so signing's replay
 protection does not reject it.
 
+One pending report per victim: a RESCUE_VICTIM_REPORT replaces a pending report of
+the same (``robot_sysid``, ``victim_id``), since the newest says everything the HQ
+needs; it inherits the replaced one's event flags (NEW, URGENCY_CHANGED, ...) so
+the HQ still learns that the victim is new. The acknowledgement of a replaced
+report is counted as unmatched. Bound: at most ``max_pending`` messages wait; a new
+one beyond that drops the oldest pending one, loudly (``dropped`` counts it; the
+victim is reported again at its next change, and the HQ's RESEND re-reports all).
+With one report per victim the bound is only reached with that many victims
+unacknowledged.
+
+Transactions: ``stage(msg)`` writes to the store inside the caller's open
+transaction (the report's commit and its outbox entry are one transaction) and
+keeps the message out of the schedule; ``publish()`` after the commit schedules what
+was staged (``discard()`` after a rollback forgets it). So nothing is sent before
+it is on disk.
+
 Receiver side, ``Deduplicator``: remembers (sysid, msgid, seq) keys it has seen (a
 bounded, oldest-first memory) and tells the caller whether a message is a repeat;
 the receiver acknowledges repeats too (the first ACK may have been lost) but acts
@@ -92,7 +108,25 @@ class OutboxCounters:
     sent: int = 0  # first sends and resends
     resent: int = 0
     acked: int = 0
-    unmatched_acks: int = 0  # acks for nothing pending (late duplicates)
+    unmatched_acks: int = 0  # acks for nothing pending (late duplicates, replaced reports)
+    replaced: int = 0  # pending reports replaced by a newer one of the same victim
+    dropped: int = 0  # the oldest pending message, dropped at the bound
+
+
+# Fields that name what a message is about: a newer message about the same thing
+# replaces a pending one. Flags that mean an event carry over to the replacement.
+_SUBJECT_FIELDS = {RESCUE_VICTIM_REPORT_ID: ("robot_sysid", "victim_id")}
+_FLAG_GLOBAL_VALID = 1  # follows the newest report, the other flags are events
+MAX_PENDING = 1000
+
+Key = tuple[int, int]
+
+
+def _subject(msg: MavMessage) -> tuple[int, ...] | None:
+    fields = _SUBJECT_FIELDS.get(msg.get_msgId())
+    if fields is None:
+        return None
+    return (msg.get_msgId(), *(int(getattr(msg, f)) for f in fields))
 
 
 class Outbox:
@@ -109,20 +143,26 @@ class Outbox:
         *,
         initial_s: float = 1.0,
         max_s: float = 30.0,
+        max_pending: int = MAX_PENDING,
         clock: Callable[[], float] = time.monotonic,
         codec: Codec | None = None,
     ) -> None:
         if initial_s <= 0 or max_s < initial_s:
             raise ValueError(f"need 0 < initial_s ({initial_s}) <= max_s ({max_s})")
+        if max_pending < 1:
+            raise ValueError(f"max_pending must be >= 1, got {max_pending}")
         self._send = send
         self._store: OutboxStore = store if store is not None else MemoryOutboxStore()
         self._initial_s = initial_s
         self._max_s = max_s
+        self._max_pending = max_pending
         self._clock = clock
         # Frames in the store are written and read by this unsigned codec only.
         self._frames = codec if codec is not None else Codec(1, 1)
         self._lock = threading.Lock()
-        self._schedule: dict[tuple[int, int], _Schedule] = {}
+        self._schedule: dict[Key, _Schedule] = {}  # insertion order: oldest first
+        self._staged: dict[Key, MavMessage] = {}
+        self._subjects: dict[tuple[int, ...], Key] = {}  # what is about whom, pending or staged
         self.counters = OutboxCounters()
         now = clock()
         for msgid, seq, frame in self._store.pending():  # left over from a previous run
@@ -131,39 +171,122 @@ class Outbox:
                 log.warning("outbox: stored message %d/%d does not decode; dropped", msgid, seq)
                 self._store.ack(msgid, seq)
                 continue
-            self._schedule[(msgid, seq)] = _Schedule(msg, now, initial_s, 0)
+            key = (msgid, seq)
+            subject = _subject(msg)
+            older = self._subjects.get(subject) if subject is not None else None
+            if older is not None:  # an older version kept two reports of one victim
+                self._schedule.pop(older, None)
+                self._store.ack(*older)
+            if subject is not None:
+                self._subjects[subject] = key
+            self._schedule[key] = _Schedule(msg, now, initial_s, 0)
+
+    # -- submitting ----------------------------------------------------------------
 
     def submit(self, msg: MavMessage, *, send: bool = True) -> None:
-        """Store ``msg`` and keep resending it until acknowledged.
+        """Store ``msg``, send it now (or at the next ``poll()`` with ``send=False``)
+        and keep resending it until acknowledged."""
+        self.stage(msg)
+        self.publish(due_now=not send)
+        if send:
+            self._send(msg)
 
-        ``send=False`` only stores and schedules it as due now: the caller commits
-        its own transaction first, and the next ``poll()`` sends it.
-        """
+    def stage(self, msg: MavMessage) -> None:
+        """Store ``msg`` (in the caller's open transaction, if its store has them) and
+        hold it until ``publish()``; a pending message about the same victim is
+        replaced (in the store now, in the schedule at publish)."""
         key = (msg.get_msgId(), seq_of(msg))
-        frame = self._frames.encode(msg)
-        self._store.put(key[0], key[1], frame)
-        now = self._clock()
+        subject = _subject(msg)
+        older: Key | None = None
+        old_msg: MavMessage | None = None
         with self._lock:
-            self.counters.submitted += 1
-            if not send:
-                self._schedule[key] = _Schedule(msg, now, self._initial_s, 0)
-                return
-            next_backoff_s = min(2.0 * self._initial_s, self._max_s)
-            self._schedule[key] = _Schedule(msg, now + self._initial_s, next_backoff_s, 1)
-            self.counters.sent += 1
-        self._send(msg)
+            if subject is not None and self._subjects.get(subject, key) != key:
+                older = self._subjects[subject]
+                item = self._schedule.get(older)
+                old_msg = item.msg if item is not None else self._staged.get(older)
+        if older is not None and old_msg is not None:
+            msg.flags |= int(old_msg.flags) & ~_FLAG_GLOBAL_VALID & 0xFF
+            self._store.ack(*older)
+        self._store.put(key[0], key[1], self._frames.encode(msg))
+        with self._lock:
+            if older is not None:
+                self._staged.pop(older, None)
+            self._staged[key] = msg
+            if subject is not None:
+                self._subjects[subject] = key
+
+    def publish(self, *, due_now: bool = True) -> None:
+        """Schedule everything staged (after the caller's commit). ``due_now``: the
+        next ``poll()`` sends it; else the caller sends it now itself."""
+        now = self._clock()
+        dropped: list[Key] = []
+        with self._lock:
+            staged, self._staged = self._staged, {}
+            for key, msg in staged.items():
+                self.counters.submitted += 1
+                subject = _subject(msg)
+                for k, item in list(self._schedule.items()):
+                    if subject is not None and _subject(item.msg) == subject:
+                        del self._schedule[k]
+                        self.counters.replaced += 1
+                if due_now:
+                    self._schedule[key] = _Schedule(msg, now, self._initial_s, 0)
+                else:
+                    backoff_s = min(2.0 * self._initial_s, self._max_s)
+                    self._schedule[key] = _Schedule(msg, now + self._initial_s, backoff_s, 1)
+                    self.counters.sent += 1
+                while len(self._schedule) > self._max_pending:
+                    oldest = next(iter(self._schedule))
+                    self._forget(oldest)
+                    dropped.append(oldest)
+        for msgid, seq in dropped:
+            self._store.ack(msgid, seq)
+            log.warning(
+                "outbox full (%d pending): message %d/%d dropped unacknowledged",
+                self._max_pending,
+                msgid,
+                seq,
+            )
+
+    def discard(self) -> None:
+        """Forget what was staged (the caller's transaction rolled back)."""
+        with self._lock:
+            for key, msg in self._staged.items():
+                subject = _subject(msg)
+                if subject is not None and self._subjects.get(subject) == key:
+                    del self._subjects[subject]
+            self._staged.clear()
+            for key, item in self._schedule.items():  # the replaced ones are pending again
+                subject = _subject(item.msg)
+                if subject is not None:
+                    self._subjects.setdefault(subject, key)
+
+    def _forget(self, key: Key) -> None:
+        """Remove a pending message from memory (lock held)."""
+        item = self._schedule.pop(key)
+        self.counters.dropped += 1
+        subject = _subject(item.msg)
+        if subject is not None and self._subjects.get(subject) == key:
+            del self._subjects[subject]
+
+    # -- acknowledgements and sending ---------------------------------------------
 
     def on_ack(self, ack: MavMessage) -> bool:
-        """Handle a RESCUE_ACK; True if it acknowledged a pending message."""
+        """Handle a RESCUE_ACK; True if it acknowledged a pending message. It writes
+        the store: call it from the one thread that owns the outbox, not a reader."""
         key = (int(ack.acked_msgid), int(ack.seq))
         with self._lock:
-            found = self._schedule.pop(key, None) is not None
-            if found:
+            item = self._schedule.pop(key, None)
+            if item is not None:
                 self.counters.acked += 1
+                subject = _subject(item.msg)
+                if subject is not None and self._subjects.get(subject) == key:
+                    del self._subjects[subject]
             else:
                 self.counters.unmatched_acks += 1
-        self._store.ack(*key)
-        return found
+        if item is not None:
+            self._store.ack(*key)
+        return item is not None
 
     def poll(self) -> int:
         """Send every message that is due (first sends and resends); how many."""
@@ -202,6 +325,11 @@ class Outbox:
     def pending_count(self) -> int:
         with self._lock:
             return len(self._schedule)
+
+    def pending_keys(self) -> list[Key]:
+        """(msgid, seq) of every pending message, oldest first."""
+        with self._lock:
+            return list(self._schedule)
 
     def attempts(self, msgid: int, seq: int) -> int | None:
         """How many times a pending message was sent, or None if it is not pending."""
