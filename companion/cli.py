@@ -2,7 +2,8 @@
 
 Exit status: 0 success (or stopped by SIGTERM/SIGINT), 1 runtime failure, 2 bad
 configuration or usage (systemd does not restart it: RestartPreventExitStatus=2),
-3 the state database cannot be used.
+3 the state directory cannot be created or written (a corrupt state file is moved
+aside and the service starts afresh in a new ID epoch: companion/state.py).
 """
 
 from __future__ import annotations

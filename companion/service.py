@@ -42,9 +42,8 @@ from companion.sources import (
     open_camera,
     write_frame,
 )
-from companion.store import Store
+from companion.state import load_state
 from companion.vision import make_detector
-from fusion.tracker import VictimTracker
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import convert, dialect, statustext
 from mavlink_io.codec import Codec, MavMessage
@@ -147,8 +146,13 @@ class Service:
             if config.signing.enabled and config.signing.key_file is not None
             else None
         )
-        self.store = Store(config.paths.state_dir / "companion.sqlite")
-        self.tracker, self.policy, self._report_seq = self._restore()
+        rep = config.reporting
+        self.policy = ReportPolicy(
+            rep.move_threshold_sigma, rep.move_min_m, rep.update_min_interval_s
+        )
+        state = load_state(config.paths.state_dir, config.tracker, self.policy)
+        self.store, self.tracker, self._report_seq = state.store, state.tracker, state.report_seq
+        self._state_problem = state.problem  # announced once the threads run
         self.camera_model = camera_model(config.camera)
         self.pipeline = Pipeline(
             config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
@@ -211,28 +215,6 @@ class Service:
         self.camera = open_camera(config.camera)
 
     # -- state -------------------------------------------------------------------------
-
-    def _restore(self) -> tuple[VictimTracker, ReportPolicy, int]:
-        rep = self.config.reporting
-        policy = ReportPolicy(rep.move_threshold_sigma, rep.move_min_m, rep.update_min_interval_s)
-        snapshot = self.store.get("tracker")
-        tracker = (
-            VictimTracker.restore(self.config.tracker, snapshot)
-            if snapshot is not None
-            else VictimTracker(self.config.tracker)
-        )
-        reported = self.store.get("reported")
-        if reported is not None:
-            policy.restore(reported)
-        seq = int(self.store.get("report_seq") or 0)
-        if snapshot is not None:
-            log.info(
-                "restored %d victims from %s (next report %d)",
-                len(tracker.victims()),
-                self.store.path,
-                seq + 1,
-            )
-        return tracker, policy, seq
 
     def _commit(self, decisions: list[Decision]) -> None:
         """Persist the tracker, the policy and the new reports in one transaction."""
@@ -611,6 +593,8 @@ class Service:
         ]
         for t in threads:
             t.start()
+        if self._state_problem is not None:
+            self.announce("Rescue companion: saved state unusable, started afresh", 3)
         self.notifier.ready(
             f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
         )
