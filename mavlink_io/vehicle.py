@@ -14,9 +14,15 @@ MAV_STATE. Before the sysid is known only that HEARTBEAT goes out, as the config
 system ID or 1: a UDP or TCP peer that answers only who spoke first (an autopilot's
 udpin, mavlink-router's UDP server) must hear us to start sending.
 
-Streams: on the first heartbeat, after a link loss and after an autopilot reboot
-(its boot time jumps backwards), ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT,
-GPS_GLOBAL_ORIGIN and HOME_POSITION are requested with MAV_CMD_SET_MESSAGE_INTERVAL.
+Streams: ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT, GPS_GLOBAL_ORIGIN and
+HOME_POSITION are requested with MAV_CMD_SET_MESSAGE_INTERVAL on the first
+heartbeat, and again whenever the autopilot may have forgotten them (ArduPilot
+does at every reboot): after a link loss, on the first heartbeat after a silence of
+``_HEARTBEAT_GAP_S`` (a reboot shorter than the link-loss timeout), after a
+confirmed new boot time, when the transport reopened (a TCP reconnect), and when
+the heartbeat is heard but no ATTITUDE or LOCAL_POSITION_NED came for
+``_stale_s`` (at most once per ``_stale_s``). Requests are idempotent, so a
+needless one costs five small commands.
 If no COMMAND_ACK accepts it within ``ack_timeout_s`` (twice), or it is refused, the
 old REQUEST_DATA_STREAM is used instead.
 
@@ -74,6 +80,8 @@ MAV_DATA_STREAM_EXTRA1 = 10
 
 MAX_STREAM_RATE_HZ = 200.0  # no autopilot streams faster; REQUEST_DATA_STREAM's rate is uint16
 _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
+_HEARTBEAT_GAP_S = 1.5  # autopilots beat at 1 Hz: a longer silence may be a reboot
+_MIN_STALE_S = 1.0  # no telemetry for this long (or 3 periods) while connected: re-request
 _DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
 _INBOX_MAX = 1000
 
@@ -181,6 +189,11 @@ class VehicleLink:
         self._stream_method = ""
         self._request_sent_s: float | None = None
         self._request_attempts = 0
+        self._last_telemetry_s = 0.0
+        self._last_fresh_request_s = 0.0
+        self._reopens_seen = self._link_reopens()
+        rates = [r for r in (s.attitude_rate_hz, s.local_position_rate_hz) if r > 0]
+        self._stale_s = max(_MIN_STALE_S, 3.0 / min(rates)) if rates else math.inf
         self._thread = threading.Thread(target=self._run, name="vehicle-link", daemon=True)
         self._thread.start()
 
@@ -331,9 +344,33 @@ class VehicleLink:
                 self.link.name,
                 now - self._last_heartbeat_s,
             )
+        reopens = self._link_reopens()
+        if reopens != self._reopens_seen:
+            self._reopens_seen = reopens
+            self._next_heartbeat_s = now  # a peer that answers who spoke first must hear us
+            if self._connected.is_set():
+                log.info("%s: link reopened: requesting streams again", self.link.name)
+                self._request_streams(now, fresh=True)
         if now >= self._next_heartbeat_s:
             self._next_heartbeat_s = now + self.settings.heartbeat_period_s
             self._send_heartbeat()
+        if (
+            self._connected.is_set()
+            and now - self._last_telemetry_s > self._stale_s
+            and now - self._last_fresh_request_s > self._stale_s
+        ):
+            level = (
+                logging.INFO
+                if self._last_telemetry_s >= self._last_fresh_request_s
+                else logging.DEBUG
+            )
+            log.log(
+                level,
+                "%s: heartbeat heard but no telemetry for %.1f s: requesting streams again",
+                self.link.name,
+                now - self._last_telemetry_s,
+            )
+            self._request_streams(now, fresh=True)
         sent = self._request_sent_s
         if sent is not None and now - sent > self.settings.ack_timeout_s:
             self._on_request_timeout(now)
@@ -356,6 +393,8 @@ class VehicleLink:
         if (msg.get_srcSystem(), msg.get_srcComponent()) != (self._sysid, AUTOPILOT_COMPONENT):
             return
         if msg_id in _TELEMETRY_IDS:
+            if msg_id in (MSG_ATTITUDE, MSG_LOCAL_POSITION_NED):
+                self._last_telemetry_s = now
             update = self.telemetry.handle(msg, now)
             if update.rebooted:
                 self.counters.reboots += 1
@@ -378,11 +417,24 @@ class VehicleLink:
             self._sysid = sysid
             self.codec.src_system = sysid
             log.info("%s: vehicle system ID %d", self.link.name, sysid)
+        gap_s = now - self._last_heartbeat_s
         self._last_heartbeat_s = now
+        if self._connected.is_set() and gap_s > _HEARTBEAT_GAP_S:
+            log.info(
+                "%s: autopilot heartbeat after %.1f s of silence (a reboot?): "
+                "requesting streams again",
+                self.link.name,
+                gap_s,
+            )
+            self._request_streams(now, fresh=True)
         if not self._connected.is_set():
             log.info("%s: autopilot heartbeat heard", self.link.name)
             self._connected.set()
             self._request_streams(now, fresh=True)
+
+    def _link_reopens(self) -> int:
+        """How often the transport reopened (a ReconnectingLink counts it), else 0."""
+        return int(getattr(getattr(self.link, "counters", None), "reconnects", 0) or 0)
 
     def _add_pose(self, sample: PoseSample | None) -> None:
         if sample is not None:
@@ -438,6 +490,7 @@ class VehicleLink:
     def _request_streams(self, now: float, fresh: bool) -> None:
         if fresh:
             self._request_attempts = 0
+            self._last_fresh_request_s = now
             if self.origins.origin is None:
                 self._request_origin_once()
             with self._lock:
