@@ -145,11 +145,16 @@ def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
 
 
 def _replay(config: Config, tlog: Path, frames: Path, out: Path) -> int:
-    from companion.replay import replay, write_outputs
+    from companion.replay import prepare_output, replay, write_outputs
     from companion.sources import CameraError
     from companion.vision import VisionError
     from mavlink_io.errors import TlogError
 
+    try:
+        out = prepare_output(out)  # before the mission is processed, not after
+    except OSError as exc:
+        print(f"rescue-companion: replay: cannot write {out}: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
     try:
         result = replay(config, tlog, frames)
     except (CameraError, TlogError, VisionError) as exc:
@@ -160,9 +165,10 @@ def _replay(config: Config, tlog: Path, frames: Path, out: Path) -> int:
     except OSError as exc:
         print(f"rescue-companion: replay: cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_FAILURE
+    skipped = f", {result.frames_skipped} unreadable skipped" if result.frames_skipped else ""
     print(
-        f"replayed {result.frames} frames ({result.frames_without_pose} without a pose), "
-        f"{len(result.victims)} victims -> {out}, map {png}"
+        f"replayed {result.frames} frames ({result.frames_without_pose} without a pose"
+        f"{skipped}), {len(result.victims)} victims -> {out}, map {png}"
     )
     for v in sorted(result.victims, key=lambda v: v.victim_id):
         print(

@@ -33,6 +33,7 @@ from fusion.registry import Victim
 from fusion.tracker import VictimTracker
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io.codec import MavMessage
+from mavlink_io.errors import TlogError
 from mavlink_io.telemetry import TelemetryDecoder, is_autopilot_heartbeat
 from mavlink_io.tlog import read_tlog
 
@@ -50,6 +51,7 @@ class ReplayResult:
     origin: GlobalOrigin | None
     robot_sysid: int
     frames: int = 0
+    frames_skipped: int = 0  # unreadable or truncated image files
     frames_without_pose: int = 0
     poses: int = 0
     reboots: int = 0
@@ -125,9 +127,35 @@ def _progress(done: int, total: int, victims: int) -> None:
         log.info("replay: %d/%d frames, %d victims", done, total, victims)
 
 
+def check_tlog(tlog: Path) -> None:
+    """TlogError unless the tlog holds a valid record from an autopilot (its
+    HEARTBEAT); read only up to that heartbeat, so it is quick on any size."""
+    records = 0
+    for _t, msg in read_tlog(tlog):
+        records += 1
+        if is_autopilot_heartbeat(msg):
+            return
+    if records == 0:
+        raise TlogError(f"{tlog}: no MAVLink record in it (empty, or not a tlog)")
+    raise TlogError(f"{tlog}: {records} MAVLink records but no autopilot HEARTBEAT")
+
+
+def prepare_output(out: Path) -> Path:
+    """The JSON path to write (``out``, or ``out/victims.json`` for a folder), its
+    folder created and proven writable now, before any processing; OSError if not."""
+    path = out / "victims.json" if out.is_dir() else out
+    path.parent.mkdir(parents=True, exist_ok=True)
+    probe = path.with_name(f".{path.name}.probe")
+    probe.write_bytes(b"")
+    probe.unlink()
+    return path
+
+
 def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
     """Run the pipeline over a recorded mission. Raises CameraError/TlogError on
-    unusable inputs (the CLI reports them)."""
+    unusable inputs (the CLI reports them): a frames folder without frames, a tlog
+    without an autopilot."""
+    check_tlog(tlog)
     source = FramesDirSource(frames_dir)
     poses = PoseHistory(config.vehicle.pose_history_s)
     telemetry = _Telemetry(tlog, poses, source.mono_minus_unix_s)
@@ -157,6 +185,8 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
         _progress(frame.index + 1, total, len(tracker.victims()))
     telemetry.advance_to(float("inf"))
     source.close()
+    if telemetry.count == 0:  # a real log can lack LOCAL_POSITION_NED: say it, do not fail
+        log.warning("replay: no pose decoded from %s (no ATTITUDE with LOCAL_POSITION_NED)", tlog)
     everything = tracker.victims()
     return ReplayResult(
         victims=[v for v in everything if v.state != TrackState.MERGED],
@@ -164,6 +194,7 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
         origin=telemetry.decoder.origins.origin,
         robot_sysid=telemetry.sysid,
         frames=pipeline.counters.frames,
+        frames_skipped=source.frames_skipped,
         frames_without_pose=pipeline.counters.frames_without_pose,
         poses=telemetry.count,
         reboots=telemetry.reboots,
@@ -208,6 +239,7 @@ def result_document(result: ReplayResult) -> dict[str, Any]:
         if origin is None
         else {"lat_deg": origin.lat_deg, "lon_deg": origin.lon_deg, "alt_m": origin.alt_m},
         "frames": result.frames,
+        "frames_skipped": result.frames_skipped,
         "frames_without_pose": result.frames_without_pose,
         "poses": result.poses,
         "autopilot_reboots": result.reboots,
@@ -217,11 +249,15 @@ def result_document(result: ReplayResult) -> dict[str, Any]:
 
 
 def write_outputs(result: ReplayResult, out_json: Path) -> Path:
-    """Write the JSON document and the map PNG beside it; the PNG's path."""
+    """Write the JSON document and the map PNG beside it, each whole or not at all
+    (no temporary file is left behind); the PNG's path. OSError if they cannot be."""
     out_json.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_json.with_suffix(out_json.suffix + ".tmp")
-    tmp.write_text(json.dumps(result_document(result), indent=2) + "\n")
-    tmp.replace(out_json)
+    tmp = out_json.with_name(out_json.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(result_document(result), indent=2) + "\n")
+        tmp.replace(out_json)
+    finally:
+        tmp.unlink(missing_ok=True)
     png = out_json.with_suffix(".png")
     draw_mission_map(png, result.route_ne_m, result.victims)
     return png

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -134,3 +135,67 @@ def test_replay_copes_with_real_telemetry(
     else:
         assert doc["origin"]["lat_deg"] == pytest.approx(origin_lat_deg, abs=0.01)
     assert doc["victims"] == []  # grey frames hold nobody
+
+
+def _cli(mission: Path, tlog: Path, frames: Path, out: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [
+            sys.executable, "-m", "companion.cli", "replay",
+            "--config", str(mission / "camera.toml"),
+            "--tlog", str(tlog), "--frames", str(frames), "--out", str(out),
+        ],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("content", [b"", bytes(range(256)) * 40], ids=["empty", "random"])
+def test_a_tlog_without_an_autopilot_exits_2(mission: Path, tmp_path: Path, content: bytes) -> None:
+    tlog = tmp_path / "bad.tlog"
+    tlog.write_bytes(content)
+    result = _cli(mission, tlog, mission / "frames", tmp_path / "v.json")
+    assert result.returncode == 2, result.stdout + result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert lines and "no MAVLink record" in lines[-1] and "Traceback" not in result.stderr
+    assert not (tmp_path / "v.json").exists()
+
+
+def test_an_unwritable_out_fails_before_processing_and_leaves_no_tmp(
+    mission: Path, tmp_path: Path
+) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a folder should be")
+    started = time.monotonic()
+    result = _cli(mission, mission / "mission.tlog", mission / "frames", blocker / "v.json")
+    assert result.returncode == 1, result.stderr
+    assert "cannot write" in result.stderr and "Traceback" not in result.stderr
+    assert " frames, " not in result.stderr  # no progress line: nothing was processed
+    assert time.monotonic() - started < 30.0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_out_naming_a_folder_writes_victims_json_in_it(mission: Path, tmp_path: Path) -> None:
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for path in sorted((mission / "frames").iterdir())[:40]:
+        (frames / path.name).write_bytes(path.read_bytes())
+    out = tmp_path / "out"
+    out.mkdir()
+    result = _cli(mission, mission / "mission.tlog", frames, out)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert sorted(p.name for p in out.iterdir()) == ["victims.json", "victims.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames", "out"]  # no stray .tmp
+
+
+def test_a_truncated_jpeg_is_skipped_and_counted(mission: Path, tmp_path: Path) -> None:
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    paths = sorted((mission / "frames").iterdir())[:30]
+    for path in paths:
+        (frames / path.name).write_bytes(path.read_bytes())
+    cut = frames / paths[10].name
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])  # a recording cut short
+    config = load_config(mission / "camera.toml")
+    result = replay(config, mission / "mission.tlog", frames)
+    assert result.frames_skipped == 1
+    assert result.frames == len(paths) - 1
+    assert result_document(result)["frames_skipped"] == 1

@@ -4,7 +4,10 @@ Frames are read in time order, as fast as asked. ``t_unix_s`` comes from the nam
 ``t_mono_s`` maps it onto this process's monotonic clock with the offset between
 the two clocks sampled when the folder is opened, so a recording replays on the
 same time axis as the pose log recorded with it. Files with other names are
-ignored (counted and logged once); an unreadable image is skipped with a warning.
+ignored (counted and logged once); an unreadable or truncated image (a JPEG without
+its end marker, a PNG without IEND: a recording cut short by a full disk or a
+power loss) is skipped with a warning and counted in ``frames_skipped``; OpenCV
+would decode the part that is there and grey out the rest, a frame that lies.
 ``write_frame`` saves a frame under the same naming scheme.
 """
 
@@ -15,12 +18,30 @@ import re
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from companion.sources.base import CameraError, EndOfStream, Frame, mono_minus_unix_s
 
 log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"^(\d{1,20})\.(jpe?g|png)$", re.IGNORECASE)
+
+
+def read_frame_file(path: Path) -> tuple[np.ndarray | None, str]:
+    """The BGR image in a .jpg/.png file, or (None, why it cannot be used)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        return None, f"cannot be read: {exc.strerror or exc}"
+    if path.suffix.lower() == ".png":
+        if b"IEND" not in data[-12:]:
+            return None, "is truncated (no PNG IEND chunk)"
+    elif data.rstrip(b"\x00\r\n")[-2:] != b"\xff\xd9":
+        return None, "is truncated (no JPEG end marker)"
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        return None, "is not a readable image"
+    return image, ""
 
 
 def frame_filename(t_unix_s: float, ext: str = "jpg") -> str:
@@ -82,10 +103,10 @@ class FramesDirSource:
             t_us, path = self._entries[self._pos]
             index = self._pos
             self._pos += 1
-            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            image, why = read_frame_file(path)
             if image is None:
                 self.frames_skipped += 1
-                log.warning("%s: %s is not a readable image; skipped", self.name, path.name)
+                log.warning("%s: %s %s; skipped", self.name, path.name, why)
                 continue
             t_unix_s = t_us / 1e6
             return Frame(image, t_unix_s + self._offset_s, t_unix_s, index)
