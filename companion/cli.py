@@ -24,43 +24,115 @@ EXIT_STATE = 3
 log = logging.getLogger(__name__)
 
 
+_CONFIG_HELP = "the TOML config file (docs/CONFIG.md; on the Pi /etc/rescue-companion/config.toml)"
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rescue-companion", description=__doc__.splitlines()[0])
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    sub = parser.add_subparsers(dest="command", required=True)
-    check = sub.add_parser("check-config", help="validate a config file and print the result")
-    check.add_argument("--config", type=Path, required=True)
-    run = sub.add_parser("run", help="run the companion service (systemd Type=notify)")
-    run.add_argument("--config", type=Path, required=True)
+    parser = argparse.ArgumentParser(
+        prog="rescue-companion",
+        description="The victim-finding program on the rover's companion computer.",
+        epilog="Exit status: 0 ok, 1 runtime failure, 2 bad configuration or input, "
+        "3 the state directory cannot be written.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at DEBUG level")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    check = sub.add_parser(
+        "check-config",
+        help="validate a config file and print the result",
+        description="Validate a config file, its camera calibration and the devices it "
+        "names (camera, video file or frames folder, serial ports); exit 2 naming the "
+        "first problem.",
+    )
+    check.add_argument("--config", type=Path, required=True, help=_CONFIG_HELP)
+    check.add_argument(
+        "--no-devices",
+        action="store_true",
+        help="check the file only, not that its camera and serial ports exist here "
+        "(for a config meant for another machine)",
+    )
+    run = sub.add_parser(
+        "run",
+        help="run the companion service (systemd Type=notify)",
+        description="Run the service: vehicle link, camera, detection, tracking, "
+        "reports to the HQ. Stops on SIGTERM or SIGINT.",
+    )
+    run.add_argument("--config", type=Path, required=True, help=_CONFIG_HELP)
     run.add_argument(
         "--debug-processing-delay-s",
         type=float,
         default=0.0,
+        metavar="SECONDS",
         help="fault injection for tests: extra processing time per frame",
     )
     run.add_argument(
         "--debug-stall-after-s",
         type=float,
         default=None,
+        metavar="SECONDS",
         help="fault injection for tests: the processing loop hangs after this long",
     )
-    rep = sub.add_parser("replay", help="run the pipeline offline on a recorded mission")
-    rep.add_argument("--config", type=Path, required=True)
-    rep.add_argument("--tlog", type=Path, required=True, help="the autopilot's telemetry log")
-    rep.add_argument(
-        "--frames", type=Path, required=True, help="folder of <unix_us>.jpg|png frames"
+    rep = sub.add_parser(
+        "replay",
+        help="run the pipeline offline on a recorded mission",
+        description="Run the live pipeline offline on a recorded mission "
+        "(docs/REPLAY.md); exit 2 for unusable inputs, 1 if the output cannot be written.",
     )
     rep.add_argument(
-        "--out", type=Path, required=True, help="victims JSON (a map PNG goes beside it)"
+        "--config", type=Path, required=True, help="the companion's config (camera, detector, ...)"
     )
-    det = sub.add_parser("detect", help="run the perception step on image files")
-    det.add_argument("--config", type=Path, default=None, help="camera and detector settings")
-    det.add_argument("--json", action="store_true", help="one JSON object per image")
-    det.add_argument("--annotate", type=Path, default=None, metavar="DIR", help="draw detections")
-    det.add_argument("images", type=Path, nargs="+", metavar="IMAGE_OR_DIR")
-    models = sub.add_parser("models", help="fetch or check the person model files")
-    models.add_argument("action", choices=["fetch", "check"])
-    models.add_argument("--dir", type=Path, default=None, help="model folder (default: the venv's)")
+    rep.add_argument(
+        "--tlog", type=Path, required=True, help="the autopilot's telemetry log (.tlog)"
+    )
+    rep.add_argument(
+        "--frames",
+        type=Path,
+        required=True,
+        metavar="DIR",
+        help="folder of frames named <unix_time_us>.jpg or .png",
+    )
+    rep.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="the victims JSON file to write (a map PNG goes beside it), or a folder "
+        "for victims.json and victims.png",
+    )
+    det = sub.add_parser(
+        "detect",
+        help="run the perception step on image files",
+        description="Run the person detection on image files and print what it finds.",
+    )
+    det.add_argument(
+        "--config", type=Path, default=None, help="camera and detector settings (default: built-in)"
+    )
+    det.add_argument("--json", action="store_true", help="print one JSON object per image")
+    det.add_argument(
+        "--annotate",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write a copy of each image with its detections drawn into DIR",
+    )
+    det.add_argument(
+        "images",
+        type=Path,
+        nargs="+",
+        metavar="IMAGE_OR_DIR",
+        help="image files, or folders of them",
+    )
+    models = sub.add_parser(
+        "models",
+        help="fetch or check the person model files",
+        description="Fetch the person model files (checked by sha256) or check those there.",
+    )
+    models.add_argument(
+        "action",
+        choices=["fetch", "check"],
+        help="fetch: download what is missing or wrong; check: verify the files",
+    )
+    models.add_argument(
+        "--dir", type=Path, default=None, help="model folder (default: the one in the venv)"
+    )
     return parser
 
 
@@ -102,9 +174,45 @@ def _detect(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
 
 
-def _check_config(config: Config) -> int:
+def _missing_devices(config: Config) -> list[str]:
+    """What the config names on this machine that is not there: a camera device,
+    video file or frames folder, a serial port. ``run`` waits for a serial port or a
+    camera that may appear later; ``check-config`` is the pre-flight check and fails."""
+    from companion.sources import CameraError, parse_source
+    from mavlink_io.linkspec import parse_link
+
+    problems: list[str] = []
+    try:
+        spec = parse_source(config.camera.source)
+    except CameraError as exc:
+        return [f"camera.{exc}"]
+    paths = {
+        "device": Path(f"/dev/video{spec.target}"),
+        "file": Path(spec.target),
+        "frames": Path(spec.target),
+    }
+    path = paths.get(spec.kind)
+    if path is not None and not path.exists():
+        what = {"device": "no such camera device", "file": "no such video file"}
+        problems.append(
+            f"camera.source = {config.camera.source!r}: "
+            f"{what.get(spec.kind, 'no such frames folder')} {path}"
+        )
+    for key, url in (("vehicle.url", config.vehicle.url), ("hq.url", config.hq.url)):
+        link = parse_link(url) if url else None
+        if link is not None and link.kind == "serial" and not Path(link.device).exists():
+            problems.append(f"{key} = {url!r}: no such serial port {link.device}")
+    return problems
+
+
+def _check_config(config: Config, devices: bool = True) -> int:
     from companion.calibration import camera_model
 
+    problems = _missing_devices(config) if devices else []
+    for line in problems:
+        print(f"rescue-companion: config error: {line}", file=sys.stderr)
+    if problems:
+        return EXIT_CONFIG
     cam = camera_model(config.camera)
     k = cam.intrinsics
     print(
@@ -196,7 +304,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"rescue-companion: config error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
     if args.command == "check-config":
-        return _check_config(config)
+        return _check_config(config, devices=not args.no_devices)
     if args.command == "run":
         return _run(config, args.debug_processing_delay_s, args.debug_stall_after_s)
     if args.command == "replay":

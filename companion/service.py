@@ -64,6 +64,8 @@ _SAVE_PERIOD_S = 5.0  # the tracker is saved at least this often while frames fl
 _MAILBOX_WAIT_S = 0.25
 _STOP_POLL_S = 0.1  # how often the main thread looks for a stop signal
 _SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
+_FIRST_WAIT_NOTE_S = 3.0  # no autopilot this long after start (or a loss): say so
+_WAIT_NOTE_PERIOD_S = 30.0  # ... and again this often while it lasts
 
 
 @dataclass(frozen=True)
@@ -479,6 +481,7 @@ class Service:
         next_status = 0.0
         next_summary = time.monotonic() + _SUMMARY_PERIOD_S
         was_connected = False
+        next_wait_note = time.monotonic() + _FIRST_WAIT_NOTE_S
         while not self.stop.is_set():
             self._apply_acks()
             self.outbox.poll()
@@ -492,6 +495,11 @@ class Service:
             if connected != was_connected:
                 self._link_changed(connected)
                 was_connected = connected
+            if connected:
+                next_wait_note = now + _FIRST_WAIT_NOTE_S
+            elif now >= next_wait_note:
+                next_wait_note = now + _WAIT_NOTE_PERIOD_S
+                self._note_waiting(now)
             if now >= next_status:
                 next_status = now + period
                 self._send_status(now)
@@ -502,6 +510,26 @@ class Service:
             wait = next_status - now if due is None else min(due, next_status - now)
             self._wake_reporter.wait(max(0.01, wait))
             self._wake_reporter.clear()
+
+    def _note_waiting(self, now: float) -> None:
+        """Say what the service waits for, and where, while no autopilot is heard."""
+        v = self.config.vehicle
+        heard = self.vehicle.state().counters["messages_in"]
+        spec = parse_link(v.url)
+        where = spec.describe()
+        bound = getattr(self.vehicle.link, "local_address", None)
+        if spec.kind in ("udpin", "tcpin") and isinstance(bound, tuple) and spec.port == 0:
+            where += f" (port {bound[1]} chosen by the system)"
+        log.warning(
+            "waiting for the autopilot: no HEARTBEAT from a flight controller%s on the "
+            "vehicle link %s (%s) for %.0f s%s; pose, geolocation and reports to the HQ "
+            "over the vehicle link wait for it",
+            f" with system ID {v.system_id}" if v.system_id else "",
+            v.url,
+            where,
+            now - self.started_mono_s,
+            f", {heard} other messages heard" if heard else ", nothing heard",
+        )
 
     def _apply_acks(self) -> None:
         while True:
@@ -570,10 +598,14 @@ class Service:
                 min(pending, 0xFFFF),
             )
         )
-        link = "up" if self.vehicle.connected else "down"
+        link = (
+            "vehicle up"
+            if self.vehicle.connected
+            else f"waiting for the autopilot on {self.config.vehicle.url}"
+        )
         camera = "ok" if self._camera_ok else "lost"
         self.notifier.status(
-            f"vehicle {link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
+            f"{link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
             f"{confirmed} victims, {pending} unacknowledged"
         )
 

@@ -35,6 +35,16 @@ class LinkSpec:
             return f"serial:{self.device}:{self.baud}"
         return f"{self.kind}:{self.host}:{self.port}"
 
+    def describe(self) -> str:
+        """What the link does, for a person: "listening on UDP 127.0.0.1:14550"."""
+        return {
+            "serial": f"serial port {self.device} at {self.baud} baud",
+            "udpin": f"listening on UDP {self.host}:{self.port}",
+            "udpout": f"sending to UDP {self.host}:{self.port}",
+            "tcp": f"connecting to TCP {self.host}:{self.port}",
+            "tcpin": f"accepting TCP on {self.host}:{self.port}",
+        }[self.kind]
+
 
 def _port(text: str, url: str) -> int:
     try:
