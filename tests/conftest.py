@@ -22,6 +22,24 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+# The checkout must stay clean: a telemetry log belongs where the config (or the
+# test's tmp_path) says. MAVProxy writes mav.tlog and mav.tlog.raw into its working
+# directory unless told otherwise, and such files were once committed at the root.
+CHECKOUT = Path(__file__).resolve().parents[1]
+
+
+def _stray_logs() -> set[str]:
+    return {p.name for p in CHECKOUT.iterdir() if p.name.startswith("mav.") or p.suffix == ".tlog"}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_logs_in_the_checkout() -> Iterator[None]:
+    before = _stray_logs()
+    yield
+    new = sorted(_stray_logs() - before)
+    assert not new, f"a test or the program wrote {new} into {CHECKOUT}; use tmp_path"
+
+
 # -- live mission helpers: a systemd notify socket -------------------------------------------
 
 

@@ -114,3 +114,14 @@ def test_run_without_an_autopilot_says_what_it_waits_for_and_where(tmp_path: Pat
     line = next(x for x in log.read_text().splitlines() if "waiting for the autopilot" in x)
     assert "HEARTBEAT" in line and "udpin:127.0.0.1:0" in line
     assert "listening on UDP 127.0.0.1:0 (port" in line
+
+
+def test_the_licence_is_an_spdx_string_that_pip_installs_without_a_warning() -> None:
+    # A TOML table (license = { text = "MIT" }) makes setuptools >= 77 warn at every
+    # pip install; the SPDX string needs setuptools >= 77 to build.
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    meta = tomllib.loads((root / "pyproject.toml").read_text())
+    assert meta["project"]["license"] == "MIT"
+    assert "setuptools>=77" in meta["build-system"]["requires"]
