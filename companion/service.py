@@ -23,7 +23,7 @@ import queue
 import statistics
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -180,6 +180,7 @@ class Service:
         self._camera_ok = False
         self.stats = FrameStats()
         self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
+        self._count_victims()  # the restored ones, before any thread runs
         self._floor_down_m = config.geolocation.floor_down_m
         self._origin: GlobalOrigin | None = None  # the origin reports were last made with
         self.outbox = Outbox(
@@ -422,6 +423,11 @@ class Service:
             self._floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
             vision_ms = outcome.vision_ms
         self.stats.add(time.monotonic(), vision_ms)
+        self._count_victims()
+
+    def _count_victims(self) -> None:
+        """Publish the victim counts for the reporter, which must not touch the tracker
+        (it is the processing thread's: iterating it there can see it change)."""
         victims = self.tracker.victims(include_tentative=True)
         confirmed = sum(
             1 for v in victims if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
@@ -542,7 +548,7 @@ class Service:
 
     def _link_changed(self, connected: bool) -> None:
         if connected:
-            known = self._counts[0] or len(self.tracker.victims())
+            known = self._counts[0]
             self.announce(f"Rescue companion online, {known} victims known", 5)
             self.outbox.resend_all_now()
         else:
@@ -551,7 +557,8 @@ class Service:
 
     def _log_summary(self) -> None:
         c = self.pipeline.counters
-        rejected = ", ".join(f"{k}: {n}" for k, n in c.rejected.most_common(3)) or "none"
+        counts = Counter(dict(c.rejected))  # one C-level copy: processing adds keys meanwhile
+        rejected = ", ".join(f"{k}: {n}" for k, n in counts.most_common(3)) or "none"
         log.info(
             "%d frames (%d without a pose, %d dropped), %d detections, %d observations "
             "(rejected: %s), %d confirmed victims, %d reports unacknowledged",
