@@ -218,9 +218,15 @@ def test_sigkill_and_restart_lose_nothing_and_reannounce_nothing(
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
-    # Nothing was acknowledged: every report sent so far must come again after restart.
-    unacked = {m.report_seq for m in ground.of_type("RESCUE_VICTIM_REPORT")}
-    known_victims = {m.victim_id for m in ground.of_type("RESCUE_VICTIM_REPORT")}
+    # Nothing was acknowledged: the newest report of every victim must come again after
+    # the restart (a newer report of a victim replaces its older pending one).
+    sent = ground.of_type("RESCUE_VICTIM_REPORT")
+    newest: dict[int, int] = {}
+    for m in sent:
+        newest[m.victim_id] = max(newest.get(m.victim_id, 0), m.report_seq)
+    unacked = set(newest.values())
+    sent_seqs = {m.report_seq for m in sent}
+    known_victims = set(newest)
     restart_s = time.monotonic()
     ground.acking.set()
     proc = _start(cfg, log)
@@ -239,13 +245,13 @@ def test_sigkill_and_restart_lose_nothing_and_reannounce_nothing(
         renewed = [
             m.victim_id
             for m in after
-            if m.flags & FLAG_NEW and m.victim_id in known_victims and m.report_seq not in unacked
+            if m.flags & FLAG_NEW and m.victim_id in known_victims and m.report_seq not in sent_seqs
         ]
         assert not renewed, f"re-announced as new after restart: {renewed}"
         assert first.victim_id in {m.victim_id for m in after}
         # The restarted process continues the sequence rather than reusing numbers.
-        fresh = [m.report_seq for m in after if m.report_seq not in unacked]
-        assert all(seq > max(unacked) for seq in fresh)
+        fresh = [m.report_seq for m in after if m.report_seq not in sent_seqs]
+        assert all(seq > max(sent_seqs) for seq in fresh)
     finally:
         assert _stop(proc) == 0, log.read_text()[-3000:]
 

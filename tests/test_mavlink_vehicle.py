@@ -229,9 +229,10 @@ def test_one_absurd_boot_time_changes_nothing(rig: tuple[VehicleLink, FakeAutopi
     offset_s = vehicle.clock.offset_s
     poses_before = vehicle.counters.poses
     for boot_ms in (4_000_000_000, 0):  # far ahead of the clock, then back to zero
+        refused = vehicle.telemetry.refused["ATTITUDE"]
         ap.conn.mav.attitude_send(boot_ms, 0.0, 0.0, 0.0, 0, 0, 0)
         vehicle.wait_for_state(
-            lambda s, n=vehicle.telemetry.refused["ATTITUDE"]: s.counters["refused"] > n,
+            lambda s, n=refused: s.counters["refused"] > n,
             timeout_s=3.0,
         )
     vehicle.wait_for_state(lambda s: s.counters["poses"] > poses_before + 10, timeout_s=3.0)
