@@ -43,6 +43,7 @@ from companion.sources import (
     write_frame,
 )
 from companion.state import load_state
+from companion.store import StoreError
 from companion.vision import make_detector
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import convert, dialect, statustext
@@ -179,6 +180,8 @@ class Service:
         self._wake_reporter = threading.Event()
         self._camera_ok = False
         self.stats = FrameStats()
+        self._unsaved: dict[int, Decision] = {}  # by victim: reports not yet on disk
+        self._store_failing = False
         self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
         self._count_victims()  # the restored ones, before any thread runs
         self._floor_down_m = config.geolocation.floor_down_m
@@ -220,32 +223,60 @@ class Service:
     # -- state -------------------------------------------------------------------------
 
     def _commit(self, decisions: list[Decision]) -> None:
-        """Persist the tracker, the policy and the new reports in one transaction."""
+        """Persist the tracker, the policy and the new reports in one transaction.
+
+        When the database cannot be written (a full disk: recorded frames share it),
+        the reports wait in memory (one per victim, the newest, its flags merged) and
+        go into the next commit, the periodic save included; nothing unsaved is sent.
+        The failure and the recovery are each said once, loudly. People hear about a
+        victim at once, whatever the disk.
+        """
+        for d in decisions:
+            kept = self._unsaved.get(d.victim.victim_id)
+            self._unsaved[d.victim.victim_id] = (
+                d if kept is None else Decision(d.victim, kept.flags | d.flags, False)
+            )
         sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
         origin = self.vehicle.origin
         now = time.time()
+        for d in decisions:
+            self._queue_people(d, d.victim.to_report(sysid, self._floor_down_m, origin))
         seq = self._report_seq
-        people: list[tuple[Decision, Any]] = []
         try:
             with self.store.transaction():
-                for d in decisions:
+                for d in self._unsaved.values():
                     seq += 1
                     report = d.victim.to_report(sysid, self._floor_down_m, origin)
                     msg = convert.victim_report_to_msg(
                         report, seq, d.flags, now, d.victim.merged_into, self._m
                     )
                     self.outbox.stage(msg)  # in this transaction; scheduled after it
-                    people.append((d, report))
                 self.store.set("tracker", self.tracker.snapshot())
                 self.store.set("reported", self.policy.snapshot())
                 self.store.set("report_seq", seq)
+        except StoreError as exc:
+            self.outbox.discard()
+            if not self._store_failing:
+                self._store_failing = True
+                log.error(
+                    "cannot save: %s. The disk may be full; victims and %d reports are kept "
+                    "in memory and saved (then sent) when it can be written again",
+                    exc,
+                    len(self._unsaved),
+                )
+                self.announce("Rescue companion: cannot save state, disk full?", 2)
+            return
         except BaseException:
             self.outbox.discard()
             raise
         self._report_seq = seq
+        saved = len(self._unsaved)
+        self._unsaved.clear()
         self.outbox.publish()  # committed: now the reporter may send them
-        for d, report in people:
-            self._queue_people(d, report)
+        if self._store_failing:
+            self._store_failing = False
+            log.warning("the state database can be written again; %d kept reports saved", saved)
+            self.announce("Rescue companion: state saved again", 5)
         self._wake_reporter.set()
 
     def _queue_people(self, d: Decision, report: Any) -> None:

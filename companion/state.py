@@ -18,8 +18,9 @@ Epoch 0 is the first run (IDs 1, 2, 3 ...). If the whole state directory is
 wiped, IDs start again at epoch 0: that is a new robot to the HQ's eyes only if its
 own records are wiped too.
 
-``StoreError`` is left for what moving aside cannot fix: a state directory that
-cannot be created or written (exit status 3).
+``StoreError`` is left for what moving aside cannot fix or need not: a state
+directory that cannot be created or written, a database locked by another process,
+a newer schema version (exit status 3; the file is left as it is).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.reporting import ReportPolicy
-from companion.store import Store, StoreError
+from companion.store import Store, StoreCorrupt, StoreError
 from fusion.errors import FusionError
 from fusion.params import TrackerParams
 from fusion.tracker import VictimTracker
@@ -77,7 +78,7 @@ def load_state(state_dir: Path, params: TrackerParams, policy: ReportPolicy) -> 
         else:
             try:
                 return _restore(path, params, policy, _read_epoch(epoch_path) or 0)
-            except (StoreError, FusionError, ValueError) as exc:
+            except (StoreCorrupt, FusionError, ValueError) as exc:
                 problem = f"cannot be used: {exc}"
     moved = _move_aside(path) if problem is not None else None
     known = _read_epoch(epoch_path)

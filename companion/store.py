@@ -43,6 +43,19 @@ class StoreError(Exception):
     """The state database cannot be opened or used; the message names the file."""
 
 
+class StoreCorrupt(StoreError):
+    """The file is not a usable state database (not SQLite, malformed, bad JSON):
+    waiting or restarting will not mend it (companion.state moves it aside)."""
+
+
+_CORRUPT_CODES = (11, 26)  # SQLITE_CORRUPT, SQLITE_NOTADB
+
+
+def _is_corrupt(exc: sqlite3.Error) -> bool:
+    code = getattr(exc, "sqlite_errorcode", None)
+    return code in _CORRUPT_CODES or type(exc) is sqlite3.DatabaseError
+
+
 class Store:
     """Durable companion state. Thread-safe; ``close()`` is safe twice."""
 
@@ -66,7 +79,8 @@ class Store:
                     f"{path}: state database version {version}, expected {SCHEMA_VERSION}"
                 )
         except sqlite3.DatabaseError as exc:
-            raise StoreError(f"{path}: cannot use the state database: {exc}") from None
+            kind = StoreCorrupt if _is_corrupt(exc) else StoreError
+            raise kind(f"{path}: cannot use the state database: {exc}") from None
         except OSError as exc:
             raise StoreError(f"{path}: cannot create the state directory: {exc.strerror}") from None
 
@@ -74,22 +88,42 @@ class Store:
 
     @contextlib.contextmanager
     def transaction(self) -> Iterator[None]:
-        """Group writes into one commit; nests (the outermost one commits)."""
+        """Group writes into one commit; nests (the outermost one commits).
+
+        A failure (a full disk: SQLite may already have rolled back by itself) rolls
+        back whatever is left and raises StoreError naming the file; the connection
+        stays usable for the next transaction.
+        """
         with self._lock:
             db = self._conn()
             if self._depth == 0:
-                db.execute("BEGIN IMMEDIATE")
+                self._run(db, "BEGIN IMMEDIATE")
             self._depth += 1
             try:
                 yield
             except BaseException:
                 self._depth -= 1
                 if self._depth == 0:
-                    db.execute("ROLLBACK")
+                    self._rollback(db)
                 raise
             self._depth -= 1
             if self._depth == 0:
-                db.execute("COMMIT")
+                try:
+                    db.execute("COMMIT")
+                except sqlite3.Error as exc:
+                    self._rollback(db)
+                    raise StoreError(f"{self.path}: cannot write: {exc}") from None
+
+    def _run(self, db: sqlite3.Connection, sql: str) -> None:
+        try:
+            db.execute(sql)
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: cannot write: {exc}") from None
+
+    @staticmethod
+    def _rollback(db: sqlite3.Connection) -> None:
+        if db.in_transaction:  # SQLITE_FULL and others may have rolled back already
+            db.execute("ROLLBACK")
 
     def _conn(self) -> sqlite3.Connection:
         if self._db is None:
@@ -98,19 +132,33 @@ class Store:
 
     # -- key/value state ---------------------------------------------------------------
 
+    def _read(self, sql: str, args: tuple[Any, ...] = ()) -> list[Any]:
+        try:
+            return self._conn().execute(sql, args).fetchall()
+        except sqlite3.Error as exc:
+            kind = StoreCorrupt if _is_corrupt(exc) else StoreError
+            raise kind(f"{self.path}: cannot read: {exc}") from None
+
     def _get(self, key: str) -> Any:
-        row = self._conn().execute("SELECT value FROM kv WHERE key = ?", (key,)).fetchone()
+        rows = self._read("SELECT value FROM kv WHERE key = ?", (key,))
+        row = rows[0] if rows else None
         if row is None:
             return None
         try:
             return json.loads(row[0])
         except json.JSONDecodeError:
-            raise StoreError(f"{self.path}: stored {key!r} is not valid JSON") from None
+            raise StoreCorrupt(f"{self.path}: stored {key!r} is not valid JSON") from None
 
     def _set(self, key: str, value: Any) -> None:
-        self._conn().execute(
+        self._write(
             "INSERT OR REPLACE INTO kv (key, value) VALUES (?, ?)", (key, json.dumps(value))
         )
+
+    def _write(self, sql: str, args: tuple[Any, ...]) -> sqlite3.Cursor:
+        try:
+            return self._conn().execute(sql, args)
+        except sqlite3.Error as exc:  # a full disk, a locked or read-only file
+            raise StoreError(f"{self.path}: cannot write: {exc}") from None
 
     def get(self, key: str) -> Any:
         with self._lock:
@@ -124,23 +172,19 @@ class Store:
 
     def put(self, msgid: int, seq: int, frame: bytes) -> None:
         with self.transaction():
-            self._conn().execute(
+            self._write(
                 "INSERT OR IGNORE INTO outbox (msgid, seq, frame) VALUES (?, ?, ?)",
                 (msgid, seq, frame),
             )
 
     def ack(self, msgid: int, seq: int) -> bool:
         with self.transaction():
-            cur = self._conn().execute(
-                "DELETE FROM outbox WHERE msgid = ? AND seq = ?", (msgid, seq)
-            )
+            cur = self._write("DELETE FROM outbox WHERE msgid = ? AND seq = ?", (msgid, seq))
             return cur.rowcount > 0
 
     def pending(self) -> list[tuple[int, int, bytes]]:
         with self._lock:
-            rows = (
-                self._conn().execute("SELECT msgid, seq, frame FROM outbox ORDER BY seq").fetchall()
-            )
+            rows = self._read("SELECT msgid, seq, frame FROM outbox ORDER BY seq")
         return [(int(m), int(s), bytes(f)) for m, s, f in rows]
 
     def close(self) -> None:

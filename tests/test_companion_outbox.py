@@ -4,6 +4,7 @@ owned by the reporter thread, never written on a link reader thread."""
 
 from __future__ import annotations
 
+import logging
 import sqlite3
 import threading
 import time
@@ -16,7 +17,7 @@ import pytest
 from companion.config import config_from_dict
 from companion.sdnotify import Notifier
 from companion.service import FrameStats, Service
-from companion.store import Store
+from companion.store import Store, StoreError
 from fusion.types import TrackState, Urgency, VictimReport
 from mavlink_io import convert, dialect
 from mavlink_io.reliable import Outbox
@@ -173,3 +174,49 @@ def test_an_ack_never_blocks_the_link_thread_on_a_locked_database(service: Servi
     finally:
         service.stop.set()
         runner.join(timeout=15)
+
+
+def _decision(victim_id: int) -> object:
+    from companion.reporting import Decision
+    from fusion.registry import Victim
+
+    victim = Victim(
+        victim_id=victim_id,
+        state=TrackState.CONFIRMED,
+        urgency=Urgency.MEDIUM,
+        visibility_pct=30.0,
+        north_m=1.0,
+        east_m=2.0,
+        cov_ne_m2=((0.04, 0.0), (0.0, 0.04)),
+        observations=5,
+        first_seen_unix_s=1.7e9,
+        last_seen_unix_s=1.7e9 + 5,
+        log_odds=3.0,
+        merged_into=None,
+    )
+    return Decision(victim, convert.FLAG_NEW, announce=True)
+
+
+def test_a_full_disk_keeps_the_reports_in_memory_and_writes_them_when_space_returns(
+    service: Service, caplog: pytest.LogCaptureFixture
+) -> None:
+    db = service.store._conn()
+    pages = db.execute("PRAGMA page_count").fetchone()[0]
+    db.execute(f"PRAGMA max_page_count = {pages + 4}")  # a disk with 4 pages left
+    filler = 0
+    with pytest.raises(StoreError, match="full"):  # fill them, as recorded frames would
+        while True:
+            filler += 1
+            service.store.set(f"filler{filler}", "x" * 2000)
+    with caplog.at_level(logging.ERROR):
+        service._commit([_decision(1)])  # must not raise: the processing thread lives on
+        service._commit([_decision(2)])
+    assert service.outbox.pending_count == 0  # nothing is sent that is not on disk
+    assert service.store.pending() == []
+    full = [r for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(full) == 1 and "full" in full[0].getMessage()  # said once, loudly
+    db.execute("PRAGMA max_page_count = 1000000")  # space returns
+    service._commit([])  # the next save writes what was kept
+    assert sorted(seq for _, seq, _ in service.store.pending()) == [1, 2]
+    assert service.outbox.pending_count == 2
+    assert service.store.get("report_seq") == 2
