@@ -103,7 +103,7 @@ class MountConfig:
     y_m: float = 0.0  # right
     z_m: float = -0.20  # down (negative: above)
     roll_deg: float = 0.0
-    pitch_deg: float = -25.0  # negative: tilted down
+    pitch_deg: float = -12.0  # negative: tilted down
     yaw_deg: float = 0.0
 
 

@@ -488,6 +488,14 @@ class Registry:
         ).fetchall()
         return [Source(int(h), _report(p), int(s), int(m), float(u)) for h, p, s, m, u in rows]
 
+    def first_received_unix_s(self) -> dict[tuple[int, int], float]:
+        """When the first report of each (robot sysid, robot's victim id) arrived."""
+        rows = self._db.execute(
+            "SELECT robot_sysid, victim_id, MIN(received_unix_s) FROM reports"
+            " GROUP BY robot_sysid, victim_id"
+        ).fetchall()
+        return {(int(r), int(v)): float(t) for r, v, t in rows}
+
     def report_count(self) -> int:
         return int(self._db.execute("SELECT COUNT(*) FROM reports").fetchone()[0])
 

@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 from test_hq_e2e import HqProcess, start_hq  # noqa: F401  (the fixture)
 
-from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.live import LiveSim
 from scenarios.world import preset
 
@@ -32,7 +31,7 @@ def test_direct_link_report_ack_and_operator_mark(
             f'[vehicle]\nurl = "{sim.vehicle_url}"\n'
             f'[hq]\nurl = "udpout:127.0.0.1:{hq.port}"\ntunnel = false\nresend_initial_s = 0.5\n'
             f'[camera]\nsource = "{sim.camera_source}"\n'
-            f'[paths]\nstate_dir = "{tmp_path / "state"}"\n' + SIM_DETECTOR_TOML
+            f'[paths]\nstate_dir = "{tmp_path / "state"}"\n'
         )
         log = tmp_path / "companion.log"
         with log.open("wb") as out:
