@@ -36,6 +36,7 @@ from hq.registry import (
     RegistryError,
     StoreResult,
 )
+from hq.sbs import SbsServer
 from hq.transport import Endpoint, Peer
 from hq.view import hq_victims
 from mavlink_io.codec import Codec
@@ -106,8 +107,10 @@ class HqApp:
         endpoints: Sequence[Endpoint],
         options: HqOptions,
         out: TextIO,
+        sbs: SbsServer | None = None,
     ) -> None:
         self.registry = registry
+        self.sbs = sbs  # the victims as ADS-B traffic for QGC (hq/sbs.py)
         self.endpoints = list(endpoints)
         self.options = options
         self.out = out
@@ -434,6 +437,8 @@ class HqApp:
             return
         if dirty and self.options.export_dir is not None:
             self._export(victims)
+        if dirty and self.sbs is not None:
+            self.sbs.publish(victims)
         if self.options.live_table:
             header = table.Header(
                 self.options.sysid,
