@@ -185,7 +185,6 @@ class ReportingConfig:
     """What is told to the HQ, and when."""
 
     statustext: bool = True  # STATUSTEXT that a stock QGC shows and speaks
-    map_marker: bool = True  # CAMERA_IMAGE_CAPTURED at the victim (needs a global origin)
     dialect_report: bool = True  # RESCUE_VICTIM_REPORT for rescue-hq
     status_period_s: float = 1.0  # RESCUE_STATUS and our HEARTBEAT period
     move_threshold_sigma: float = 1.0  # re-report after moving this many sigmas

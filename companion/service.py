@@ -227,26 +227,9 @@ class Service:
         self._wake_reporter.set()
 
     def _queue_people(self, d: Decision, report: Any) -> None:
-        rep = self.config.reporting
-        msgs: list[MavMessage] = []
-        if d.announce and rep.statustext:
-            msgs += statustext.victim_statustext(report, self.chunk_ids, self._m)
-        if rep.map_marker and d.victim.state in (
-            TrackState.CONFIRMED,
-            TrackState.NOT_SEEN_RECENTLY,
-        ):
-            origin = self.vehicle.origin
-            pose = self.vehicle.poses.latest()
-            marker = convert.victim_marker_msg(
-                report,
-                pose.t_boot_s if pose else 0.0,
-                time.time(),
-                origin.alt_m if origin else None,
-                self._m,
-            )
-            if marker is not None:
-                msgs.append(marker)
-        for msg in msgs:
+        if not (d.announce and self.config.reporting.statustext):
+            return
+        for msg in statustext.victim_statustext(report, self.chunk_ids, self._m):
             try:
                 self.people.put_nowait(msg)
             except queue.Full:

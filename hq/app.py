@@ -27,7 +27,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from fusion.types import GlobalOrigin
 from hq import export, table, wire
 from hq.registry import (
     IncomingReport,
@@ -73,7 +72,6 @@ class HqOptions:
     signing: Signing | None = None
     live_table: bool = False
     duration_s: float | None = None
-    origin: GlobalOrigin | None = None
 
 
 @dataclass(frozen=True)
@@ -452,9 +450,8 @@ class HqApp:
 
     def _export(self, victims: list[Any]) -> None:
         assert self.options.export_dir is not None
-        origin = self.options.origin or self.registry.default_origin()
         try:
-            export.export_all(victims, self.options.export_dir, origin)
+            export.export_all(victims, self.options.export_dir)
         except OSError as exc:
             log.error("export to %s failed: %s", self.options.export_dir, exc)
             return

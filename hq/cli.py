@@ -26,10 +26,10 @@ from types import FrameType
 from fusion.types import GlobalOrigin
 from hq import export, table
 from hq.app import HqApp, HqOptions
-from hq.registry import OperatorAction, Registry, RegistryError
+from hq.registry import OperatorAction, Origins, Registry, RegistryError
 from hq.sbs import DEFAULT_ADDRESS, SbsServer
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
-from hq.view import hq_victims
+from hq.view import build, hq_victims
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError
 from mavlink_io.linkspec import LinkSpec, parse_link
 from mavlink_io.signing import load_signing
@@ -107,7 +107,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--db", type=Path, default=Path(DEFAULT_DB), help="SQLite registry file")
     p.add_argument("--sysid", type=_sysid, default=245, help="the HQ's MAVLink system ID")
-    p.add_argument("--export-dir", type=Path, help="write victims.geojson/.kml/.plan here")
+    p.add_argument("--export-dir", type=Path, help="write victims.geojson/.kml/.csv here")
     p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (mode 0600)")
     p.add_argument(
         "--origin",
@@ -190,7 +190,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 signing=signing,
                 live_table=not args.no_table and sys.stdout.isatty(),
                 duration_s=args.duration_s,
-                origin=args.origin,
             )
             app = HqApp(registry, endpoints, options, sys.stdout, sbs)
             stop = threading.Event()
@@ -295,10 +294,12 @@ def _cmd_mark(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     with _open_registry(args.db, must_exist=True) as registry:
-        victims = hq_victims(registry)
-        origin = args.origin or registry.default_origin()
+        origins = registry.origins()
+        if args.origin is not None:  # place NED-only victims of robots without an origin
+            origins = Origins(origins.per_robot, args.origin)
+        victims = build(registry.sources(), registry.actions(), origins)
     try:
-        result = export.export_all(victims, args.out, origin)
+        result = export.export_all(victims, args.out)
     except OSError as exc:
         print(f"rescue-hq: cannot write exports to {args.out}: {exc}", file=sys.stderr)
         return EXIT_RUNTIME

@@ -176,5 +176,5 @@ def print_summary(result: DemoResult) -> None:
     print("\nagainst the world's ground truth:")
     print(result.score_text)
     print(f"\nmission map: {result.map_png}")
-    print(f"HQ exports: {result.out_dir / 'exports'} (GeoJSON, KML, QGC plan)")
+    print(f"HQ exports: {result.out_dir / 'exports'} (GeoJSON, KML, CSV)")
     print(f"logs: {result.out_dir / 'companion.log'}, {result.out_dir / 'hq.log'}")

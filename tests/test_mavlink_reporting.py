@@ -88,7 +88,7 @@ def test_signed_state_changes_accepted_unsigned_and_forged_rejected() -> None:
     assert [x.get_type() for x in hq_signed.feed(frame)] == ["RESCUE_STATUS"]
 
 
-# ----------------------------------------------------------------- STATUSTEXT / marker
+# ----------------------------------------------------------------- STATUSTEXT
 
 
 def test_statustext_severity_text_and_chunks() -> None:
@@ -107,20 +107,6 @@ def test_statustext_severity_text_and_chunks() -> None:
     tx, rx = Codec(7, 191), Codec(255, 190)
     text = "".join(x.text for x in rx.feed(b"".join(tx.encode(c) for c in again)))
     assert text == "B" * 60
-
-
-def test_marker_only_with_global_position() -> None:
-    assert convert.victim_marker_msg(report(), 10.0, 1.7e9) is None
-    glob = report(lat_deg=48.1234567, lon_deg=-124.5, alt_m=12.3)
-    marker = convert.victim_marker_msg(glob, 10.0, 1.7e9, origin_alt_m=10.0)
-    assert marker is not None
-    assert (marker.lat, marker.lon, marker.alt, marker.relative_alt) == (
-        481234567,
-        -1245000000,
-        12300,
-        2300,
-    )
-    assert marker.capture_result == 1 and marker.image_index == 3
 
 
 def test_victim_report_roundtrip_si_units() -> None:
