@@ -6,7 +6,8 @@ Threads (docs/ARCHITECTURE.md):
 - camera: frames into a one-slot mailbox (a newer frame replaces an unprocessed
   one; the drop is counted);
 - processing: pipeline, operator actions, persistence, systemd watchdog;
-- reporter: outbox sends and resends, people-facing messages, RESCUE_STATUS.
+- reporter: outbox sends and resends, announcements (rate-limited), health
+  conditions (HQ link, disk), RESCUE_STATUS.
 
 The processing thread commits a frame's consequences (tracker, what was reported,
 the new reports) in one SQLite transaction before the reporter sends anything, so
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import shutil
 import statistics
 import threading
 import time
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from companion.announcements import Announcement, Announcements, Conditions
 from companion.calibration import camera_model
 from companion.config import Config
 from companion.pipeline import FrameOutcome, Pipeline
@@ -62,6 +65,14 @@ _SAVE_PERIOD_S = 5.0  # the tracker is saved at least this often while frames fl
 _MAILBOX_WAIT_S = 0.25
 _STOP_POLL_S = 0.1  # how often the main thread looks for a stop signal
 _SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
+_DISK_FULL_BYTES = 64 * 1024 * 1024  # less free space than this on the state disk is "full"
+# What people are told when a health condition changes: (text, MAV_SEVERITY) when it
+# goes bad, when it is fine again. Severity 5 (NOTICE) or more urgent: QGC speaks it.
+_CONDITION_WORDS = {
+    "camera": (("camera lost", 3), ("camera back", 5)),
+    "hq": (("HQ link lost", 4), ("HQ link back", 5)),
+    "disk": (("disk full", 4), ("disk space free again", 5)),
+}
 
 
 @dataclass(frozen=True)
@@ -139,7 +150,8 @@ class Service:
                 self.frames_dir = None
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
-        self.people: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
+        self.announcements = Announcements()
+        self.conditions = Conditions()
         self.dedupe = Deduplicator()
         self.chunk_ids = statustext.ChunkIds()
         self._wake_reporter = threading.Event()
@@ -227,25 +239,32 @@ class Service:
         self._wake_reporter.set()
 
     def _queue_people(self, d: Decision, report: Any) -> None:
-        if not (d.announce and self.config.reporting.statustext):
-            return
-        for msg in statustext.victim_statustext(report, self.chunk_ids, self._m):
-            try:
-                self.people.put_nowait(msg)
-            except queue.Full:
-                log.warning("people-facing queue full; %s dropped", msg.get_type())
+        if d.announce:
+            text = statustext.victim_text(report)
+            self._put_announcement(text, statustext.victim_severity(report, d.spoken))
 
     def announce(self, text: str, severity: int) -> None:
-        """A status line for people (QGC shows it; NOTICE and above are spoken)."""
+        """A status line for people, naming this robot (QGC shows it; NOTICE and
+        more urgent are spoken)."""
+        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
+        self._put_announcement(f"{statustext.robot_label(sysid)} {text}", severity)
+
+    def _put_announcement(self, text: str, severity: int) -> None:
         log.info("announce: %s", text)
         if not self.config.reporting.statustext:
             return
-        for msg in statustext.statustext_msgs(text, severity, self.chunk_ids, self._m):
-            try:
-                self.people.put_nowait(msg)
-            except queue.Full:
-                return
+        spoken = severity <= statustext.MAV_SEVERITY_NOTICE
+        self.announcements.put(Announcement(text, severity, spoken))
         self._wake_reporter.set()
+
+    def _condition(self, name: str, ok: bool) -> None:
+        """A health condition's state; its changes are announced once each."""
+        self._announce_changes(self.conditions.update(name, ok, time.monotonic()))
+
+    def _announce_changes(self, changes: list[tuple[str, bool]]) -> None:
+        for name, ok in changes:
+            text, severity = _CONDITION_WORDS[name][ok]
+            self.announce(text, severity)
 
     # -- links ---------------------------------------------------------------------------
 
@@ -294,7 +313,6 @@ class Service:
         return run
 
     def _camera_loop(self) -> None:
-        was_ok: bool | None = None
         while not self.stop.is_set():
             try:
                 frame = self.camera.read(timeout_s=0.5)
@@ -303,17 +321,14 @@ class Service:
             except EndOfStream as exc:
                 log.info("camera: %s", exc)
                 self._camera_ok = False
-                self.announce("Camera stream ended", 4)
+                self.announce("camera stream ended", 4)
                 self.stop.wait()
                 return
             except CameraError as exc:
                 log.debug("camera: %s", exc)
                 frame = None
             ok = frame is not None or self.camera.healthy
-            if ok != was_ok:
-                if was_ok is not None:
-                    self.announce("Camera back" if ok else "Camera lost", 6 if ok else 3)
-                was_ok = ok
+            self._condition("camera", ok)
             self._camera_ok = ok
             if frame is not None:
                 self.mailbox.put(frame)
@@ -440,12 +455,10 @@ class Service:
         was_connected = False
         while not self.stop.is_set():
             self.outbox.poll()
-            while True:
-                try:
-                    self._send_plain(self.people.get_nowait())
-                except queue.Empty:
-                    break
             now = time.monotonic()
+            for a in self.announcements.take(now):
+                for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
+                    self._send_plain(msg)
             connected = self.vehicle.connected
             if connected != was_connected:
                 self._link_changed(connected)
@@ -453,22 +466,40 @@ class Service:
             if now >= next_status:
                 next_status = now + period
                 self._send_status(now)
+                self._check_health(now)
             if now >= next_summary:
                 next_summary = now + _SUMMARY_PERIOD_S
                 self._log_summary()
-            due = self.outbox.seconds_until_due()
-            wait = next_status - now if due is None else min(due, next_status - now)
+            waits = [
+                next_status - now,
+                self.outbox.seconds_until_due(),
+                self.announcements.seconds_until_due(now),
+            ]
+            wait = min(w for w in waits if w is not None)
             self._wake_reporter.wait(max(0.01, wait))
             self._wake_reporter.clear()
+
+    def _check_health(self, now: float) -> None:
+        """The HQ link (when there is a direct one; heard within hq_timeout_s, judged
+        from hq_timeout_s after start) and the state disk."""
+        if self.hq is not None and now - self.started_mono_s >= self.config.hq.hq_timeout_s:
+            self._condition("hq", self.hq.heard_within(self.config.hq.hq_timeout_s))
+        try:
+            free = shutil.disk_usage(self.config.paths.state_dir).free
+        except OSError as exc:
+            log.debug("free space of %s: %s", self.config.paths.state_dir, exc)
+        else:
+            self._condition("disk", free >= _DISK_FULL_BYTES)
+        self._announce_changes(self.conditions.due(now))  # a flapping one settled
 
     def _link_changed(self, connected: bool) -> None:
         if connected:
             known = self._counts[0] or len(self.tracker.victims())
-            self.announce(f"Rescue companion online, {known} victims known", 5)
+            self.announce(f"companion online, {known} victims known", 5)
             self.outbox.resend_all_now()
         else:
             # The autopilot cannot hear this; the HQ link (if any) can.
-            self.announce("Rescue companion: vehicle link lost", 3)
+            self.announce("companion: vehicle link lost", 3)
 
     def _log_summary(self) -> None:
         c = self.pipeline.counters
