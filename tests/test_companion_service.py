@@ -255,11 +255,12 @@ def test_survives_camera_loss_and_link_loss_and_says_so(
     proc = _start(_config(tmp_path, sim), tmp_path / "companion.log")
     try:
         ground.wait_for(lambda m: m.get_type() == "RESCUE_STATUS" and m.flags & 2, 30.0)  # CAMERA
-        # The camera disappears: people are told, the health flag drops, heartbeats go on.
+        # The camera disappears: people are told (which robot), the health flag drops,
+        # heartbeats go on.
         sim.camera.close()
         lost = time.monotonic()
         ground.wait_for(
-            lambda m: m.get_type() == "STATUSTEXT" and "Camera lost" in str(m.text),
+            lambda m: m.get_type() == "STATUSTEXT" and "R1 camera lost" in str(m.text),
             15.0,
             since_s=lost,
         )

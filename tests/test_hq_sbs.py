@@ -19,7 +19,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -101,7 +101,7 @@ class QgcAdsbClient:
             track.alert = int(values[19]) == 1
             track.updates.append(time.monotonic())
 
-    def wait(self, predicate, timeout_s: float) -> float:
+    def wait(self, predicate: Callable[[dict[int, Track]], bool], timeout_s: float) -> float:
         """Seconds until ``predicate(self.tracks)`` holds; TimeoutError after timeout_s."""
         start = time.monotonic()
         while not predicate(self.tracks):

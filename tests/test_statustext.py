@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import random
 import re
+from typing import Any
 
 import pytest
 
@@ -39,7 +40,7 @@ def report(**kw: object) -> VictimReport:
     return VictimReport(**base)  # type: ignore[arg-type]
 
 
-def qgc_reassemble(msgs: list) -> list[str]:
+def qgc_reassemble(msgs: list[Any]) -> list[str]:
     """The texts QGC's message list shows for these STATUSTEXTs from one component."""
     shown: list[str] = []
     pending: tuple[int, list[str]] | None = None
