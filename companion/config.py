@@ -190,12 +190,17 @@ class ReportingConfig:
     move_threshold_sigma: float = 1.0  # re-report after moving this many sigmas
     move_min_m: float = 0.3  # ... and at least this far
     update_min_interval_s: float = 5.0  # quiet updates of one victim at most this often
+    announce_severity: int = 5  # MAV_SEVERITY of a new LIGHT/MEDIUM victim (<= 5: spoken)
 
     def __post_init__(self) -> None:
         _positive(self, "status_period_s")
         _positive(self, "move_threshold_sigma")
         if not (self.move_min_m >= 0 and self.update_min_interval_s >= 0):
             raise ValueError("move_min_m and update_min_interval_s must be >= 0")
+        if not 0 <= self.announce_severity <= 7:
+            raise ValueError(
+                f"announce_severity = {self.announce_severity}: must be a MAV_SEVERITY 0..7"
+            )
 
 
 @dataclass(frozen=True)

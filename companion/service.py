@@ -31,6 +31,7 @@ from typing import Any
 from companion.announcements import Announcement, Announcements, Conditions
 from companion.calibration import camera_model
 from companion.config import Config
+from companion.params import Settings
 from companion.pipeline import FrameOutcome, Pipeline
 from companion.reporting import Decision, ReportPolicy
 from companion.sdnotify import Notifier, watchdog_period_s
@@ -51,6 +52,7 @@ from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.hqlink import HqLink
 from mavlink_io.link import ReconnectingLink
 from mavlink_io.linkspec import parse_link
+from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
 from mavlink_io.reliable import Deduplicator, Outbox
 from mavlink_io.signing import Signing, load_signing
 from mavlink_io.tlog import TlogWriter
@@ -132,6 +134,13 @@ class Service:
             else None
         )
         self.store = Store(config.paths.state_dir / "companion.sqlite")
+        # Parameters set from the ground override the config file's values (companion/params.py).
+        self.settings = Settings(
+            config, self.store.get("params"), self._apply_settings, self._save_settings
+        )
+        config = self.config = self.settings.config
+        self.param_server = ParamServer(self.settings, config.vehicle.component_id, self._m)
+        self.param_requests: queue.Queue[MavMessage] = queue.Queue(maxsize=64)
         self.tracker, self.policy, self._report_seq = self._restore()
         self.camera_model = camera_model(config.camera)
         self.pipeline = Pipeline(
@@ -241,7 +250,10 @@ class Service:
     def _queue_people(self, d: Decision, report: Any) -> None:
         if d.announce:
             text = statustext.victim_text(report)
-            self._put_announcement(text, statustext.victim_severity(report, d.spoken))
+            severity = statustext.victim_severity(
+                report, d.spoken, self.config.reporting.announce_severity
+            )
+            self._put_announcement(text, severity)
 
     def announce(self, text: str, severity: int) -> None:
         """A status line for people, naming this robot (QGC shows it; NOTICE and
@@ -274,7 +286,14 @@ class Service:
         return MAV_STATE_ACTIVE if self.vehicle.poses.latest() is not None else MAV_STATE_STANDBY
 
     def _on_dialect(self, msg: MavMessage) -> None:
-        """From a link thread: acknowledgements apply at once, actions go to processing."""
+        """From a link thread: acknowledgements apply at once, actions and parameter
+        requests go to processing."""
+        if msg.get_type() in PARAM_MESSAGE_TYPES:
+            try:
+                self.param_requests.put_nowait(msg)
+            except queue.Full:
+                log.warning("parameter request queue full; %s dropped", msg.get_type())
+            return
         if msg.get_msgId() == dialect.RESCUE_ACK_ID:
             if self.outbox.on_ack(msg):
                 log.debug("report %d acknowledged", msg.seq)
@@ -355,6 +374,7 @@ class Service:
                 self.stop.wait()
                 return
             self._handle_actions()
+            self._handle_params()
             self._check_origin()
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
@@ -424,6 +444,30 @@ class Service:
                 result,
             )
             self._send_dialect(ack)
+
+    def _handle_params(self) -> None:
+        """Answer parameter requests (processing thread: it owns the detector, the
+        policy and the store)."""
+        while True:
+            try:
+                msg = self.param_requests.get_nowait()
+            except queue.Empty:
+                return
+            handled = self.param_server.handle(msg)
+            if handled is None:
+                continue
+            for reply in handled.replies:
+                self.vehicle.send(reply)
+            if handled.refused:
+                self.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
+
+    def _apply_settings(self, config: Config) -> None:
+        self.config = config
+        self.pipeline.detector.min_score = config.detector.min_score
+        self.policy.update_min_interval_s = config.reporting.update_min_interval_s
+
+    def _save_settings(self, snapshot: dict[str, Any]) -> None:
+        self.store.set("params", snapshot)
 
     def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
         """The reports an operator action causes; None if it cannot be applied."""

@@ -2,12 +2,11 @@
 
 QGC shows severities 0-3 (EMERGENCY..ERROR) in red with a pop-up (from the active
 vehicle), 4-5 (WARNING, NOTICE) in orange, and speaks NOTICE or more urgent.
-Announcements of a new victim, and of a victim that became CRITICAL, are spoken,
-with the severity of its urgency:
+Announcements of a new victim, and of a victim that became CRITICAL, are spoken:
 
-    CRITICAL -> MAV_SEVERITY_CRITICAL (2)   red, pop-up, spoken
-    MEDIUM   -> MAV_SEVERITY_WARNING  (4)   orange, spoken
-    LIGHT    -> MAV_SEVERITY_NOTICE   (5)   orange, spoken
+    CRITICAL         -> MAV_SEVERITY_CRITICAL (2)   red, pop-up, spoken
+    MEDIUM and LIGHT -> ``announce_severity`` ([reporting], default
+                        MAV_SEVERITY_NOTICE (5): orange, spoken; 6 or 7: listed only)
 
 Other news of a victim (an escalation to MEDIUM, rescued, false alarm, merged) is
 quiet: MAV_SEVERITY_INFO (6), listed, not spoken.
@@ -44,22 +43,12 @@ MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 MAV_SEVERITY_INFO = 6
 
-SEVERITY_BY_URGENCY = {
-    Urgency.CRITICAL: MAV_SEVERITY_CRITICAL,
-    Urgency.MEDIUM: MAV_SEVERITY_WARNING,
-    Urgency.LIGHT: MAV_SEVERITY_NOTICE,
-}
 _STATE_WORDS = {
     TrackState.RESCUED: "RESCUED",
     TrackState.FALSE_ALARM: "FALSE ALARM",
     TrackState.MERGED: "MERGED",
     TrackState.NOT_SEEN_RECENTLY: "not seen recently",
 }
-
-
-def severity_for(urgency: Urgency) -> int:
-    """The MAV_SEVERITY a victim of this urgency is announced (spoken) with."""
-    return SEVERITY_BY_URGENCY[urgency]
 
 
 def _ascii(text: str) -> str:
@@ -150,8 +139,13 @@ def statustext_msgs(
     ]
 
 
-def victim_severity(report: VictimReport, spoken: bool) -> int:
-    """Spoken: the severity of its urgency; otherwise INFO (listed, not spoken)."""
-    if spoken and report.state not in _STATE_WORDS:
-        return severity_for(report.urgency)
-    return MAV_SEVERITY_INFO
+def victim_severity(
+    report: VictimReport, spoken: bool, announce_severity: int = MAV_SEVERITY_NOTICE
+) -> int:
+    """Spoken news: CRITICAL for a CRITICAL victim, else ``announce_severity``;
+    other news INFO (listed, not spoken)."""
+    if not spoken or report.state in _STATE_WORDS:
+        return MAV_SEVERITY_INFO
+    if report.urgency is Urgency.CRITICAL:
+        return MAV_SEVERITY_CRITICAL
+    return announce_severity

@@ -73,6 +73,9 @@ MAV_DATA_STREAM_EXTRA1 = 10
 
 _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
 _DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
+# PARAM_REQUEST_READ, PARAM_REQUEST_LIST, PARAM_SET: a ground station asking the
+# companion's component for its parameters (mavlink_io/params.py) also goes to on_dialect.
+_PARAM_IDS = frozenset({20, 21, 23})
 _INBOX_MAX = 1000
 
 
@@ -315,7 +318,7 @@ class VehicleLink:
         if msg_id == 0:  # HEARTBEAT
             self._on_heartbeat(msg, now)
             return
-        if msg_id in _DIALECT_IDS:
+        if msg_id in _DIALECT_IDS or msg_id in _PARAM_IDS:
             self._deliver(msg)
             return
         if tunnel.is_ours(msg):

@@ -84,8 +84,10 @@ def test_announcement_names_robot_what_urgency_where_in_one_chunk() -> None:
 def test_spoken_only_for_news() -> None:
     spoken = statustext.victim_severity
     assert spoken(report(), True) == 2
-    assert spoken(report(urgency=Urgency.MEDIUM), True) == 4
-    assert spoken(report(urgency=Urgency.LIGHT), True) == 5  # NOTICE: QGC still speaks it
+    assert spoken(report(urgency=Urgency.MEDIUM), True) == 5  # NOTICE: QGC speaks it
+    assert spoken(report(urgency=Urgency.LIGHT), True) == 5
+    assert spoken(report(urgency=Urgency.LIGHT), True, announce_severity=6) == 6  # silenced
+    assert spoken(report(), True, announce_severity=6) == 2  # CRITICAL is always spoken
     assert spoken(report(urgency=Urgency.MEDIUM), False) == 6  # INFO: listed, silent
     assert spoken(report(state=TrackState.FALSE_ALARM), True) == 6
 
