@@ -42,7 +42,7 @@ EXIT_USAGE = 2
 DEFAULT_LISTEN = "udpin:0.0.0.0:14600"
 DEFAULT_DB = "rescue-hq.sqlite"
 _SUBCOMMANDS = ("run", "mark", "export", "list")
-_SBS_DEFAULT = ("default",)  # --sbs not given: DEFAULT_ADDRESS when free
+SBS_OFF = "off"
 
 
 class UsageError(Exception):
@@ -69,9 +69,9 @@ def _sysid(text: str) -> int:
     return value
 
 
-def _sbs(text: str) -> tuple[str, int] | None:
-    if text == "off":
-        return None
+def _sbs(text: str) -> tuple[str, int] | str:
+    if text == SBS_OFF:
+        return SBS_OFF
     host, sep, port_text = text.rpartition(":")
     try:
         port = int(port_text)
@@ -118,7 +118,6 @@ def _run_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--sbs",
         type=_sbs,
-        default=_SBS_DEFAULT,
         metavar="HOST:PORT|off",
         help="serve the victims to QGroundControl's ADS-B layer as an SBS-1 feed "
         f"(default {DEFAULT_ADDRESS[0]}:{DEFAULT_ADDRESS[1]}; skipped with a warning "
@@ -233,13 +232,14 @@ def _open_endpoints(specs: list[LinkSpec]) -> list[UdpHubLink | SingleLink]:
     return opened
 
 
-def _open_sbs(choice: tuple[str, int] | tuple[str] | None) -> SbsServer | None:
-    """The SBS-1 feed for QGC. The default address is best effort (another rescue-hq
-    or a dump1090 may hold it: a warning, no feed); an address given is required."""
-    if choice is None:
+def _open_sbs(choice: tuple[str, int] | str | None) -> SbsServer | None:
+    """The SBS-1 feed for QGC (``choice``: --sbs, None when not given). The default
+    address is best effort (another rescue-hq or a dump1090 may hold it: a warning,
+    no feed); an address given is required."""
+    if choice == SBS_OFF:
         return None
-    explicit = choice != _SBS_DEFAULT
-    host, port = choice if len(choice) == 2 else DEFAULT_ADDRESS
+    explicit = isinstance(choice, tuple)
+    host, port = choice if isinstance(choice, tuple) else DEFAULT_ADDRESS
     try:
         sbs = SbsServer(host, port)
     except OSError as exc:
