@@ -221,6 +221,32 @@ class PathsConfig:
 
 
 @dataclass(frozen=True)
+class VideoConfig:
+    """The live camera view with the detections drawn, for QGC's video widget:
+    H.264 (libx264) in MPEG-TS over UDP, advertised by the camera protocol."""
+
+    enabled: bool = True
+    host: str = ""  # where QGC runs; "" = the host of [hq] url (QGC beside rescue-hq)
+    port: int = 5600  # QGC's video port (VIDEO_STREAM_INFORMATION tells QGC)
+    bitrate_kbps: float = 1000.0
+    width_px: int = 640
+    height_px: int = 480
+    fps: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.port <= 65535:
+            raise ValueError(f"port = {self.port}: must be 1..65535")
+        if not 50.0 <= self.bitrate_kbps <= 20000.0:
+            raise ValueError(f"bitrate_kbps = {self.bitrate_kbps}: must be 50..20000")
+        for name in ("width_px", "height_px"):
+            value = getattr(self, name)
+            if not (16 <= value <= 1920 and value % 2 == 0):
+                raise ValueError(f"{name} = {value}: must be even, 16..1920")
+        if not 0.5 <= self.fps <= 30.0:
+            raise ValueError(f"fps = {self.fps}: must be 0.5..30")
+
+
+@dataclass(frozen=True)
 class Config:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     hq: HqConfig = field(default_factory=HqConfig)
@@ -231,6 +257,7 @@ class Config:
     tracker: TrackerParams = field(default_factory=TrackerParams)
     reporting: ReportingConfig = field(default_factory=ReportingConfig)
     paths: PathsConfig = field(default_factory=PathsConfig)
+    video: VideoConfig = field(default_factory=VideoConfig)
 
 
 def _positive(owner: object, name: str) -> None:

@@ -17,6 +17,7 @@ after a crash nothing sent is unknown and nothing unacknowledged is lost.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import shutil
 import statistics
@@ -44,10 +45,12 @@ from companion.sources import (
     write_frame,
 )
 from companion.store import Store
+from companion.video import Label, VideoStreamer, labels_in_view, shot
 from companion.vision import make_detector
 from fusion.tracker import VictimTracker
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import convert, dialect, statustext
+from mavlink_io.camera import CameraServer, StreamInfo
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.hqlink import HqLink
 from mavlink_io.link import ReconnectingLink
@@ -140,7 +143,7 @@ class Service:
         )
         config = self.config = self.settings.config
         self.param_server = ParamServer(self.settings, config.vehicle.component_id, self._m)
-        self.param_requests: queue.Queue[MavMessage] = queue.Queue(maxsize=64)
+        self.ground_requests: queue.Queue[MavMessage] = queue.Queue(maxsize=64)
         self.tracker, self.policy, self._report_seq = self._restore()
         self.camera_model = camera_model(config.camera)
         self.pipeline = Pipeline(
@@ -203,6 +206,22 @@ class Service:
                 self.tlog,
             )
         self.camera = open_camera(config.camera)
+        self.video, self.camera_server = self._video(config)
+
+    def _video(self, config: Config) -> tuple[VideoStreamer | None, CameraServer | None]:
+        """The live video for QGC and the camera protocol that advertises it, when on
+        and a destination is known ([video] host, else the host of [hq] url)."""
+        v = config.video
+        host = v.host or (parse_link(config.hq.url).host if config.hq.url else "")
+        if not v.enabled or not host:
+            log.info("no video: %s", "[video] enabled = false" if not v.enabled else "no host")
+            return None, None
+        k = self.camera_model.intrinsics
+        hfov_deg = math.degrees(2.0 * math.atan(0.5 * k.width_px / k.fx_px))
+        info = StreamInfo(
+            v.port, v.width_px, v.height_px, v.fps, round(v.bitrate_kbps * 1000), hfov_deg
+        )
+        return VideoStreamer(v, host), CameraServer(config.vehicle.component_id, info, self._m)
 
     # -- state -------------------------------------------------------------------------
 
@@ -288,11 +307,11 @@ class Service:
     def _on_dialect(self, msg: MavMessage) -> None:
         """From a link thread: acknowledgements apply at once, actions and parameter
         requests go to processing."""
-        if msg.get_type() in PARAM_MESSAGE_TYPES:
+        if msg.get_type() in PARAM_MESSAGE_TYPES or msg.get_type() == "COMMAND_LONG":
             try:
-                self.param_requests.put_nowait(msg)
+                self.ground_requests.put_nowait(msg)
             except queue.Full:
-                log.warning("parameter request queue full; %s dropped", msg.get_type())
+                log.warning("ground request queue full; %s dropped", msg.get_type())
             return
         if msg.get_msgId() == dialect.RESCUE_ACK_ID:
             if self.outbox.on_ack(msg):
@@ -374,7 +393,7 @@ class Service:
                 self.stop.wait()
                 return
             self._handle_actions()
-            self._handle_params()
+            self._handle_ground_requests()
             self._check_origin()
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
@@ -383,6 +402,7 @@ class Service:
             if frame is not None:
                 outcome = self.pipeline.process(frame, self.vehicle.poses)
                 self._after_frame(outcome)
+                self._offer_video(frame, outcome)
                 if (
                     outcome.decisions
                     or (outcome.events and time.monotonic() - last_save > 0.5)
@@ -396,6 +416,16 @@ class Service:
             if watchdog_s is not None and now >= next_ping:
                 self.notifier.watchdog()
                 next_ping = now + watchdog_s
+
+    def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
+        if self.video is None:
+            return
+        labels: tuple[Label, ...] = ()
+        if outcome.pose is not None:
+            labels = labels_in_view(
+                self.camera_model, outcome.pose, self.tracker.victims(), self._floor_down_m
+            )
+        self.video.offer(shot(frame.image, outcome.detections, labels))
 
     def _check_origin(self) -> None:
         """Victims reported before the EKF origin was known (or under another origin)
@@ -445,14 +475,18 @@ class Service:
             )
             self._send_dialect(ack)
 
-    def _handle_params(self) -> None:
-        """Answer parameter requests (processing thread: it owns the detector, the
-        policy and the store)."""
+    def _handle_ground_requests(self) -> None:
+        """Answer parameter and camera requests (processing thread: it owns the
+        detector, the policy and the store)."""
         while True:
             try:
-                msg = self.param_requests.get_nowait()
+                msg = self.ground_requests.get_nowait()
             except queue.Empty:
                 return
+            if self.camera_server is not None:
+                pose = self.vehicle.poses.latest()
+                for reply in self.camera_server.handle(msg, pose.t_boot_s if pose else 0.0) or []:
+                    self.vehicle.send(reply)
             handled = self.param_server.handle(msg)
             if handled is None:
                 continue
@@ -619,6 +653,8 @@ class Service:
         ]
         for t in threads:
             t.start()
+        if self.video is not None:
+            self.video.start()
         self.notifier.ready(
             f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
         )
@@ -649,6 +685,8 @@ class Service:
         except Exception:
             log.exception("saving the victim registry at shutdown failed")
         self.camera.close()
+        if self.video is not None:
+            self.video.close()
         if self.hq is not None:
             self.hq.close()
         self.vehicle.close()

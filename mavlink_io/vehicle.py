@@ -21,8 +21,10 @@ If no COMMAND_ACK accepts it within ``ack_timeout_s`` (twice), or it is refused,
 old REQUEST_DATA_STREAM is used instead.
 
 Messages for us: RESCUE_ACK and RESCUE_OPERATOR_ACTION addressed to our
-(sysid, component) or broadcast, directly or inside our TUNNEL, go to ``on_dialect``
-(called on the reader thread) or, without one, to the ``inbox`` queue.
+(sysid, component) or broadcast, directly or inside our TUNNEL, and a ground
+station's PARAM_REQUEST_LIST/READ, PARAM_SET and COMMAND_LONG addressed to our
+component or to all, go to ``on_dialect`` (called on the reader thread) or,
+without one, to the ``inbox`` queue.
 """
 
 from __future__ import annotations
@@ -73,9 +75,10 @@ MAV_DATA_STREAM_EXTRA1 = 10
 
 _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
 _DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
-# PARAM_REQUEST_READ, PARAM_REQUEST_LIST, PARAM_SET: a ground station asking the
-# companion's component for its parameters (mavlink_io/params.py) also goes to on_dialect.
-_PARAM_IDS = frozenset({20, 21, 23})
+# PARAM_REQUEST_READ, PARAM_REQUEST_LIST, PARAM_SET, COMMAND_LONG: a ground station
+# asking the companion's component for its parameters (mavlink_io/params.py) or its
+# camera and video stream (mavlink_io/camera.py) also goes to on_dialect.
+_GROUND_REQUEST_IDS = frozenset({20, 21, 23, 76})
 _INBOX_MAX = 1000
 
 
@@ -318,7 +321,7 @@ class VehicleLink:
         if msg_id == 0:  # HEARTBEAT
             self._on_heartbeat(msg, now)
             return
-        if msg_id in _DIALECT_IDS or msg_id in _PARAM_IDS:
+        if msg_id in _DIALECT_IDS or msg_id in _GROUND_REQUEST_IDS:
             self._deliver(msg)
             return
         if tunnel.is_ours(msg):
