@@ -5,6 +5,8 @@
 | RC_DET_MIN_SCORE   | [detector] min_score                | detection threshold, 0..1 |
 | RC_UPD_MIN_S       | [reporting] update_min_interval_s   | quiet updates of one victim at most this often, s |
 | RC_ANN_SEV         | [reporting] announce_severity       | MAV_SEVERITY of a new LIGHT/MEDIUM victim (<= 5 spoken) |
+| RC_VID_ON          | [video] enabled                     | live video on (1) or off (0) |
+| RC_VID_KBPS        | [video] bitrate_kbps                | live video bit rate, kbit/s |
 
 The config file is the source of the defaults. A value set from QGC is validated
 exactly as the config file's value is (the config dataclass checks it), applied at
@@ -39,6 +41,8 @@ SETTINGS = (
     Setting("RC_DET_MIN_SCORE", "detector", "min_score"),
     Setting("RC_UPD_MIN_S", "reporting", "update_min_interval_s"),
     Setting("RC_ANN_SEV", "reporting", "announce_severity"),
+    Setting("RC_VID_ON", "video", "enabled"),
+    Setting("RC_VID_KBPS", "video", "bitrate_kbps"),
 )
 _BY_NAME = {s.name: s for s in SETTINGS}
 
@@ -53,7 +57,11 @@ def _with(config: Config, s: Setting, value: float) -> Config:
         raise ValueError(f"{value} is not a finite number")
     current = _value(config, s)
     typed: Any = value
-    if isinstance(current, int):
+    if isinstance(current, bool):
+        if value not in (0.0, 1.0):
+            raise ValueError(f"{value} is not 0 (off) or 1 (on)")
+        typed = value == 1.0
+    elif isinstance(current, int):
         if not value.is_integer():
             raise ValueError(f"{value} is not a whole number")
         typed = int(value)

@@ -496,6 +496,12 @@ class Service:
                 self.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
 
     def _apply_settings(self, config: Config) -> None:
+        if config.video != self.config.video:  # on/off or bit rate: a new stream
+            if self.video is not None:
+                self.video.close()
+            self.video, self.camera_server = self._video(config)
+            if self.video is not None:
+                self.video.start()
         self.config = config
         self.pipeline.detector.min_score = config.detector.min_score
         self.policy.update_min_interval_s = config.reporting.update_min_interval_s

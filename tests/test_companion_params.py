@@ -40,7 +40,13 @@ def _settings(config: Config, saved: Any = None) -> tuple[Settings, list[Any], l
 
 def test_settings_validate_like_the_config_apply_and_save() -> None:
     settings, stored, applied = _settings(Config())
-    assert settings.names() == ["RC_DET_MIN_SCORE", "RC_UPD_MIN_S", "RC_ANN_SEV"]
+    assert settings.names() == [
+        "RC_DET_MIN_SCORE",
+        "RC_UPD_MIN_S",
+        "RC_ANN_SEV",
+        "RC_VID_ON",
+        "RC_VID_KBPS",
+    ]
     assert settings.get("RC_DET_MIN_SCORE") == 0.5
     assert settings.set("RC_DET_MIN_SCORE", 0.7) is None
     assert applied[-1].detector.min_score == 0.7
@@ -51,12 +57,17 @@ def test_settings_validate_like_the_config_apply_and_save() -> None:
         ("RC_ANN_SEV", 9.0, "must be a MAV_SEVERITY 0..7"),
         ("RC_UPD_MIN_S", -1.0, "must be >= 0"),
         ("RC_UPD_MIN_S", math.nan, "not a finite number"),
+        ("RC_VID_ON", 0.5, "not 0 (off) or 1 (on)"),
+        ("RC_VID_KBPS", 10.0, "must be 50..20000"),
     ]:
         reason = settings.set(name, bad)
         assert reason is not None and name in reason and why in reason, reason
     assert len(applied) == 1 and settings.get("RC_DET_MIN_SCORE") == 0.7
     assert settings.set("RC_ANN_SEV", 6.0) is None
     assert applied[-1].reporting.announce_severity == 6  # an int, as in the config
+    assert settings.set("RC_VID_ON", 0.0) is None
+    assert applied[-1].video.enabled is False  # a bool, as in the config
+    assert settings.get("RC_VID_ON") == 0.0
 
 
 def test_saved_values_hold_until_the_config_file_changes() -> None:
@@ -186,7 +197,13 @@ def test_parameters_round_trip_with_a_pymavlink_ground_station(
         gcs.recv("HEARTBEAT", 30.0)  # the companion is up, and the rover knows both routes
         listed = gcs.param_list()
         assert listed == pytest.approx(
-            {"RC_DET_MIN_SCORE": 0.5, "RC_UPD_MIN_S": 5.0, "RC_ANN_SEV": 5}
+            {
+                "RC_DET_MIN_SCORE": 0.5,
+                "RC_UPD_MIN_S": 5.0,
+                "RC_ANN_SEV": 5,
+                "RC_VID_ON": 1,
+                "RC_VID_KBPS": 1000.0,
+            }
         )
         assert gcs.param_set("RC_DET_MIN_SCORE", 0.7) == pytest.approx(0.7)
         assert gcs.param_set("RC_UPD_MIN_S", 2.5) == pytest.approx(2.5)

@@ -153,6 +153,11 @@ def test_qgc_discovers_the_camera_and_a_client_decodes_the_stream(
         receiver.wait(40.0)
         assert receiver.error is None, receiver.error
         assert len(receiver.frames) >= 20 and set(receiver.frames) == {(640, 480)}
+        # The bit rate from QGC's parameter editor: a new stream, advertised as such.
+        gcs.conn.mav.param_set_send(1, COMPANION, b"RC_VID_KBPS", 500.0, 9)
+        assert gcs.recv("PARAM_VALUE", 10.0).param_value == 500.0
+        _, stream = gcs.request(269)
+        assert stream.bitrate == 500_000
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
