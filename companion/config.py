@@ -228,6 +228,7 @@ class VideoConfig:
     enabled: bool = True
     host: str = ""  # where QGC runs; "" = the host of [hq] url (QGC beside rescue-hq)
     port: int = 5600  # QGC's video port (VIDEO_STREAM_INFORMATION tells QGC)
+    component_id: int = 100  # the camera's MAVLink component: QGC looks for cameras at 100-105
     bitrate_kbps: float = 1000.0
     width_px: int = 640
     height_px: int = 480
@@ -236,6 +237,11 @@ class VideoConfig:
     def __post_init__(self) -> None:
         if not 1 <= self.port <= 65535:
             raise ValueError(f"port = {self.port}: must be 1..65535")
+        if not 100 <= self.component_id <= 105:
+            raise ValueError(
+                f"component_id = {self.component_id}: must be 100..105 "
+                "(MAV_COMP_ID_CAMERA..CAMERA6, where QGC looks for cameras)"
+            )
         if not 50.0 <= self.bitrate_kbps <= 20000.0:
             raise ValueError(f"bitrate_kbps = {self.bitrate_kbps}: must be 50..20000")
         for name in ("width_px", "height_px"):

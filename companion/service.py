@@ -206,6 +206,10 @@ class Service:
                 self.tlog,
             )
         self.camera = open_camera(config.camera)
+        # The camera is its own component (QGC looks for cameras at 100-105 only),
+        # with its own codec (its own sequence numbers) on the vehicle link.
+        self.camera_codec = Codec(v.system_id or 1, config.video.component_id, self.signing)
+        self.vehicle.other_components = frozenset({config.video.component_id})
         self.video, self.camera_server = self._video(config)
 
     def _video(self, config: Config) -> tuple[VideoStreamer | None, CameraServer | None]:
@@ -221,7 +225,7 @@ class Service:
         info = StreamInfo(
             v.port, v.width_px, v.height_px, v.fps, round(v.bitrate_kbps * 1000), hfov_deg
         )
-        return VideoStreamer(v, host), CameraServer(config.vehicle.component_id, info, self._m)
+        return VideoStreamer(v, host), CameraServer(v.component_id, info, self._m)
 
     # -- state -------------------------------------------------------------------------
 
@@ -486,7 +490,7 @@ class Service:
             if self.camera_server is not None:
                 pose = self.vehicle.poses.latest()
                 for reply in self.camera_server.handle(msg, pose.t_boot_s if pose else 0.0) or []:
-                    self.vehicle.send(reply)
+                    self._send_camera(reply)
             handled = self.param_server.handle(msg)
             if handled is None:
                 continue
@@ -494,6 +498,12 @@ class Service:
                 self.vehicle.send(reply)
             if handled.refused:
                 self.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
+
+    def _send_camera(self, msg: MavMessage) -> None:
+        """A message from the camera component (the vehicle's system ID, 100)."""
+        if self.vehicle.sysid:
+            self.camera_codec.src_system = self.vehicle.sysid
+        self.vehicle.send_encoded(self.camera_codec.encode(msg))
 
     def _apply_settings(self, config: Config) -> None:
         if config.video != self.config.video:  # on/off or bit rate: a new stream
@@ -551,6 +561,13 @@ class Service:
                 next_status = now + period
                 self._send_status(now)
                 self._check_health(now)
+                if self.camera_server is not None:  # the camera's own heartbeat: QGC finds it
+                    m = self._m
+                    self._send_camera(
+                        m.MAVLink_heartbeat_message(
+                            m.MAV_TYPE_CAMERA, m.MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE, 3
+                        )
+                    )
             if now >= next_summary:
                 next_summary = now + _SUMMARY_PERIOD_S
                 self._log_summary()

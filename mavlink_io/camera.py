@@ -1,7 +1,9 @@
 """The MAVLink camera protocol on the companion's component: QGC finds the video.
 
-QGC's camera manager asks every component of the vehicle it hears a HEARTBEAT from
-for CAMERA_INFORMATION; a camera whose flags say CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
+QGC's camera manager listens to components MAV_COMP_ID_CAMERA..CAMERA6 (100-105)
+of the vehicle (and the autopilot) only: the companion's camera is such a
+component, with its own HEARTBEAT (MAV_TYPE_CAMERA). QGC asks it for
+CAMERA_INFORMATION; a camera whose flags say CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
 is then asked for VIDEO_STREAM_INFORMATION, and QGC's video widget plays the
 stream it describes: here VIDEO_STREAM_TYPE_MPEG_TS (H.264 in MPEG-TS over UDP),
 whose ``uri`` is the UDP port QGC listens on.

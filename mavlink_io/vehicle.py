@@ -163,6 +163,9 @@ class VehicleLink:
         self._on_dialect = on_dialect
         self._on_message = on_message
         self._sysid = s.system_id
+        # Other components this companion speaks for (its camera): requests addressed
+        # to them also go to on_dialect; their replies go out through send_encoded.
+        self.other_components: frozenset[int] = frozenset()
         self._lock = threading.Lock()
         self._connected = threading.Event()
         self._changed = threading.Condition()  # notified after every reader-loop pass
@@ -231,6 +234,23 @@ class VehicleLink:
             self.counters.sends_dropped += 1
             return False
         data = self.codec.encode(msg)
+        try:
+            self.link.write(data)
+        except LinkError as exc:
+            self.counters.sends_dropped += 1
+            log.debug("%s: send failed: %s", self.link.name, exc)
+            return False
+        self.counters.messages_out += 1
+        if self._tlog is not None:
+            self._tlog.write(data)
+        return True
+
+    def send_encoded(self, data: bytes) -> bool:
+        """Send a frame encoded by another of this companion's components; False if
+        dropped (the vehicle's system ID is not known yet, or the link failed)."""
+        if self._sysid == 0:
+            self.counters.sends_dropped += 1
+            return False
         try:
             self.link.write(data)
         except LinkError as exc:
@@ -368,9 +388,9 @@ class VehicleLink:
     def _deliver(self, msg: MavMessage) -> None:
         target_sys = getattr(msg, "target_system", 0)
         target_comp = getattr(msg, "target_component", 0)
-        if target_sys not in (0, self._sysid) or target_comp not in (
-            0,
-            self.codec.src_component,
+        if target_sys not in (0, self._sysid) or (
+            target_comp not in (0, self.codec.src_component)
+            and target_comp not in self.other_components
         ):
             return
         if self._on_dialect is not None:

@@ -28,6 +28,7 @@ from scenarios.live import LiveSim
 from scenarios.world import preset
 
 COMPANION = 191
+CAMERA = 100  # MAV_COMP_ID_CAMERA: QGC looks for cameras at components 100-105 only
 
 
 def test_overlay_draws_boxes_and_labels_in_the_urgency_colour() -> None:
@@ -89,22 +90,22 @@ class Gcs:
         self.conn = mavutil.mavlink_connection(url, source_system=255, source_component=190)
         self._next_heartbeat = 0.0
 
-    def recv(self, want: str, timeout_s: float) -> Any:
+    def recv(self, want: str, timeout_s: float, component: int = CAMERA) -> Any:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if time.monotonic() >= self._next_heartbeat:
                 self.conn.mav.heartbeat_send(6, 8, 0, 0, 4)
                 self._next_heartbeat = time.monotonic() + 0.5
             msg = self.conn.recv_match(type=want, blocking=True, timeout=0.2)
-            if msg is not None and msg.get_srcComponent() == COMPANION:
+            if msg is not None and msg.get_srcComponent() == component:
                 return msg
-        raise TimeoutError(f"no {want} from component {COMPANION}")
+        raise TimeoutError(f"no {want} from component {component}")
 
     def request(self, msg_id: int) -> tuple[Any, Any]:
         """MAV_CMD_REQUEST_MESSAGE, as QGC's camera manager sends it; resent until
         answered (the companion may not know its system ID yet)."""
         for _ in range(10):
-            self.conn.mav.command_long_send(1, COMPANION, 512, 0, msg_id, 0, 0, 0, 0, 0, 0)
+            self.conn.mav.command_long_send(1, CAMERA, 512, 0, msg_id, 0, 0, 0, 0, 0, 0)
             try:
                 ack = self.recv("COMMAND_ACK", 2.0)
             except TimeoutError:
@@ -142,6 +143,9 @@ def test_qgc_discovers_the_camera_and_a_client_decodes_the_stream(
             env=env,
         )
     try:
+        # What QGC's camera manager waits for: a HEARTBEAT from a camera component.
+        heartbeat = gcs.recv("HEARTBEAT", 30.0)
+        assert heartbeat.type == 30  # MAV_TYPE_CAMERA
         ack, info = gcs.request(259)
         assert (ack.command, ack.result) == (512, 0)
         assert info.flags & 256  # CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
@@ -155,7 +159,7 @@ def test_qgc_discovers_the_camera_and_a_client_decodes_the_stream(
         assert len(receiver.frames) >= 20 and set(receiver.frames) == {(640, 480)}
         # The bit rate from QGC's parameter editor: a new stream, advertised as such.
         gcs.conn.mav.param_set_send(1, COMPANION, b"RC_VID_KBPS", 500.0, 9)
-        assert gcs.recv("PARAM_VALUE", 10.0).param_value == 500.0
+        assert gcs.recv("PARAM_VALUE", 10.0, component=COMPANION).param_value == 500.0
         _, stream = gcs.request(269)
         assert stream.bitrate == 500_000
     finally:
@@ -164,3 +168,29 @@ def test_qgc_discovers_the_camera_and_a_client_decodes_the_stream(
         assert proc.wait(timeout=15) == 0, log_path.read_text()[-3000:]
         gcs.conn.close()
     assert "Traceback" not in log_path.read_text()
+
+
+def test_camera_protocol_answers_legacy_requests_and_refuses_the_rest() -> None:
+    from mavlink_io import dialect
+    from mavlink_io.camera import CameraServer, StreamInfo
+
+    m = dialect.load()
+    server = CameraServer(100, StreamInfo(5602, 640, 480, 10.0, 1_000_000, 62.0), m)
+
+    def command(command: int, target_component: int = 100, param1: float = 0.0) -> list[Any]:
+        msg = m.MAVLink_command_long_message(
+            1, target_component, command, 0, param1, 0, 0, 0, 0, 0, 0
+        )
+        msg._header.srcSystem, msg._header.srcComponent = 255, 190
+        return server.handle(msg, 12.5) or []
+
+    ack, info = command(521)  # MAV_CMD_REQUEST_CAMERA_INFORMATION, as older QGC sends it
+    assert (ack.command, ack.result, ack.target_system) == (521, 0, 255)
+    assert info.get_type() == "CAMERA_INFORMATION" and info.time_boot_ms == 12500
+    ack, stream = command(2504)  # MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION
+    assert stream.uri == "5602" and stream.hfov == 62
+    (ack,) = command(2000)  # MAV_CMD_IMAGE_START_CAPTURE: not this camera's
+    assert ack.result == 3  # MAV_RESULT_UNSUPPORTED
+    assert command(2000, target_component=0) == []  # for everyone: someone else answers
+    assert command(512, target_component=0, param1=148) == []  # AUTOPILOT_VERSION
+    assert command(512, target_component=101, param1=259) == []  # another camera's
