@@ -27,7 +27,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from fusion.types import GlobalOrigin
 from hq import export, table, wire
 from hq.registry import (
     IncomingReport,
@@ -36,6 +35,7 @@ from hq.registry import (
     RegistryError,
     StoreResult,
 )
+from hq.sbs import SbsServer
 from hq.transport import Endpoint, Peer
 from hq.view import hq_victims
 from mavlink_io.codec import Codec
@@ -72,7 +72,6 @@ class HqOptions:
     signing: Signing | None = None
     live_table: bool = False
     duration_s: float | None = None
-    origin: GlobalOrigin | None = None
 
 
 @dataclass(frozen=True)
@@ -106,8 +105,10 @@ class HqApp:
         endpoints: Sequence[Endpoint],
         options: HqOptions,
         out: TextIO,
+        sbs: SbsServer | None = None,
     ) -> None:
         self.registry = registry
+        self.sbs = sbs  # the victims as ADS-B traffic for QGC (hq/sbs.py)
         self.endpoints = list(endpoints)
         self.options = options
         self.out = out
@@ -434,6 +435,8 @@ class HqApp:
             return
         if dirty and self.options.export_dir is not None:
             self._export(victims)
+        if dirty and self.sbs is not None:
+            self.sbs.publish(victims)
         if self.options.live_table:
             header = table.Header(
                 self.options.sysid,
@@ -447,9 +450,8 @@ class HqApp:
 
     def _export(self, victims: list[Any]) -> None:
         assert self.options.export_dir is not None
-        origin = self.options.origin or self.registry.default_origin()
         try:
-            export.export_all(victims, self.options.export_dir, origin)
+            export.export_all(victims, self.options.export_dir)
         except OSError as exc:
             log.error("export to %s failed: %s", self.options.export_dir, exc)
             return

@@ -2,7 +2,7 @@
 
     rescue-hq [run] [--listen URL ...] [--db PATH] [--sysid N] [--export-dir DIR]
                     [--signing-key FILE] [--origin LAT,LON,ALT] [--no-table]
-                    [--duration-s T] [-v]
+                    [--sbs HOST:PORT|off] [--duration-s T] [-v]
     rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID) (--rescued | --false-alarm)
     rescue-hq export --db PATH --out DIR [--origin LAT,LON,ALT]
     rescue-hq list   --db PATH
@@ -26,9 +26,10 @@ from types import FrameType
 from fusion.types import GlobalOrigin
 from hq import export, table
 from hq.app import HqApp, HqOptions
-from hq.registry import OperatorAction, Registry, RegistryError
+from hq.registry import OperatorAction, Origins, Registry, RegistryError
+from hq.sbs import DEFAULT_ADDRESS, SbsServer
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
-from hq.view import hq_victims
+from hq.view import build, hq_victims
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError
 from mavlink_io.linkspec import LinkSpec, parse_link
 from mavlink_io.signing import load_signing
@@ -41,6 +42,7 @@ EXIT_USAGE = 2
 DEFAULT_LISTEN = "udpin:0.0.0.0:14600"
 DEFAULT_DB = "rescue-hq.sqlite"
 _SUBCOMMANDS = ("run", "mark", "export", "list")
+SBS_OFF = "off"
 
 
 class UsageError(Exception):
@@ -65,6 +67,19 @@ def _sysid(text: str) -> int:
     if not 1 <= value <= 255:
         raise argparse.ArgumentTypeError(f"system ID {value} is outside 1..255")
     return value
+
+
+def _sbs(text: str) -> tuple[str, int] | str:
+    if text == SBS_OFF:
+        return SBS_OFF
+    host, sep, port_text = text.rpartition(":")
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not sep or not host or not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT (port 0..65535) or off")
+    return (host, port)
 
 
 def _duration(text: str) -> float:
@@ -92,7 +107,7 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--db", type=Path, default=Path(DEFAULT_DB), help="SQLite registry file")
     p.add_argument("--sysid", type=_sysid, default=245, help="the HQ's MAVLink system ID")
-    p.add_argument("--export-dir", type=Path, help="write victims.geojson/.kml/.plan here")
+    p.add_argument("--export-dir", type=Path, help="write victims.geojson/.kml/.csv here")
     p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (mode 0600)")
     p.add_argument(
         "--origin",
@@ -100,6 +115,14 @@ def _run_parser() -> argparse.ArgumentParser:
         help="EKF origin LAT,LON,ALT of robots that report only local NED positions",
     )
     p.add_argument("--no-table", action="store_true", help="plain log lines, no live table")
+    p.add_argument(
+        "--sbs",
+        type=_sbs,
+        metavar="HOST:PORT|off",
+        help="serve the victims to QGroundControl's ADS-B layer as an SBS-1 feed "
+        f"(default {DEFAULT_ADDRESS[0]}:{DEFAULT_ADDRESS[1]}; skipped with a warning "
+        "when that port is taken; off: no feed)",
+    )
     p.add_argument("--duration-s", type=_duration, help="run this long, then exit cleanly")
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
     return p
@@ -157,16 +180,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if args.origin is not None:
             registry.set_default_origin(args.origin)
         endpoints = _open_endpoints(specs)
+        sbs: SbsServer | None = None
         try:
+            sbs = _open_sbs(args.sbs)
             options = HqOptions(
                 sysid=args.sysid,
                 export_dir=args.export_dir,
                 signing=signing,
                 live_table=not args.no_table and sys.stdout.isatty(),
                 duration_s=args.duration_s,
-                origin=args.origin,
             )
-            app = HqApp(registry, endpoints, options, sys.stdout)
+            app = HqApp(registry, endpoints, options, sys.stdout, sbs)
             stop = threading.Event()
             _install_signal_handlers(stop)
             app.run(stop)
@@ -180,6 +204,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 c.actions_acked,
             )
         finally:
+            if sbs is not None:
+                sbs.close()
             for ep in endpoints:
                 ep.close()
     finally:
@@ -204,6 +230,33 @@ def _open_endpoints(specs: list[LinkSpec]) -> list[UdpHubLink | SingleLink]:
             ep.close()
         raise
     return opened
+
+
+def _open_sbs(choice: tuple[str, int] | str | None) -> SbsServer | None:
+    """The SBS-1 feed for QGC (``choice``: --sbs, None when not given). The default
+    address is best effort (another rescue-hq or a dump1090 may hold it: a warning,
+    no feed); an address given is required."""
+    if choice == SBS_OFF:
+        return None
+    explicit = isinstance(choice, tuple)
+    host, port = choice if isinstance(choice, tuple) else DEFAULT_ADDRESS
+    try:
+        sbs = SbsServer(host, port)
+    except OSError as exc:
+        if explicit:
+            raise LinkError(f"SBS-1 feed on {host}:{port}: {exc.strerror or exc}") from None
+        print(
+            f"rescue-hq: warning: no SBS-1 feed for QGC: {host}:{port}: {exc.strerror or exc} "
+            "(give --sbs HOST:PORT, or --sbs off)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return None
+    where = sbs.address
+    print(
+        f"rescue-hq: SBS-1 feed for QGC's ADSB server setting on {where[0]}:{where[1]}", flush=True
+    )
+    return sbs
 
 
 def _install_signal_handlers(stop: threading.Event) -> None:
@@ -241,10 +294,12 @@ def _cmd_mark(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     with _open_registry(args.db, must_exist=True) as registry:
-        victims = hq_victims(registry)
-        origin = args.origin or registry.default_origin()
+        origins = registry.origins()
+        if args.origin is not None:  # place NED-only victims of robots without an origin
+            origins = Origins(origins.per_robot, args.origin)
+        victims = build(registry.sources(), registry.actions(), origins)
     try:
-        result = export.export_all(victims, args.out, origin)
+        result = export.export_all(victims, args.out)
     except OSError as exc:
         print(f"rescue-hq: cannot write exports to {args.out}: {exc}", file=sys.stderr)
         return EXIT_RUNTIME

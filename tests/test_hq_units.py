@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import sqlite3
 import xml.etree.ElementTree as ET
@@ -174,7 +175,7 @@ def test_exports_hold_every_placed_victim(tmp_path: Path) -> None:
             ]
         )
         victims = hq_victims(reg)
-    result = export.export_all(victims, tmp_path / "out", ORIGIN)
+    result = export.export_all(victims, tmp_path / "out")
     assert (result.placed, result.local_only) == (2, 0)
     geo = json.loads((tmp_path / "out" / export.GEOJSON_NAME).read_text())
     coords = np.array([f["geometry"]["coordinates"][:2] for f in geo["features"]])
@@ -183,15 +184,23 @@ def test_exports_hold_every_placed_victim(tmp_path: Path) -> None:
     assert sorted(coords[:, 1]) == pytest.approx([lat0, lat20], abs=1e-9)
     root = ET.parse(tmp_path / "out" / export.KML_NAME).getroot()
     assert len(root.findall(".//{http://www.opengis.net/kml/2.2}Placemark")) == 2
-    plan = json.loads((tmp_path / "out" / export.PLAN_NAME).read_text())
-    assert len(plan["rallyPoints"]["points"]) == 2
+    with (tmp_path / "out" / export.CSV_NAME).open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["urgency"] for r in rows] == ["CRITICAL", "LIGHT"]  # most urgent first
+    assert float(rows[0]["lat_deg"]) == pytest.approx(lat0, abs=1e-8)
+    # No QGC .plan: uploading one replaces the vehicle's mission, fence and rally
+    # points, and RTL would drive the rover to a victim.
+    assert sorted(p.name for p in result.written) == sorted(
+        [export.GEOJSON_NAME, export.KML_NAME, export.CSV_NAME]
+    )
+    assert not list((tmp_path / "out").glob("*.plan"))
 
 
 def test_victims_without_lat_lon_or_origin_stay_out_of_the_files(tmp_path: Path) -> None:
     with Registry(tmp_path / "r.sqlite") as reg:
         reg.store_reports([incoming(report(1, 1, 0.0, 0.0), 1)])
         victims = hq_victims(reg)
-    result = export.export_all(victims, tmp_path, None)
+    result = export.export_all(victims, tmp_path)
     assert (result.placed, result.local_only) == (0, 1)
     assert json.loads((tmp_path / export.GEOJSON_NAME).read_text())["features"] == []
 

@@ -55,6 +55,7 @@ class DetectorUnavailable(VisionError):
 
 class Detector(Protocol):
     name: str
+    min_score: float  # detections scoring below it are dropped; may change between frames
 
     def detect(
         self, image_bgr: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
