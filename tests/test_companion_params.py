@@ -21,7 +21,6 @@ from pymavlink import mavutil
 
 from companion.config import Config, DetectorConfig, ReportingConfig
 from companion.params import Settings
-from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.live import LiveSim
 from scenarios.world import preset
 
@@ -156,8 +155,7 @@ def _config(path: Path, sim: LiveSim, state: Path, min_score: float) -> Path:
     path.write_text(
         f'[vehicle]\nurl = "{sim.vehicle_url}"\n[hq]\nurl = ""\n'
         f'[camera]\nsource = "{sim.camera_source}"\n[paths]\nstate_dir = "{state}"\n'
-        + SIM_DETECTOR_TOML
-        + f"min_score = {min_score}\n"
+        + f"[detector]\nmin_score = {min_score}\n"
     )
     return path
 

@@ -23,7 +23,6 @@ from pymavlink import mavutil
 from companion.config import VideoConfig
 from companion.video import H264Encoder, Label, Shot, draw
 from fusion.types import Urgency
-from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.live import LiveSim
 from scenarios.world import preset
 
@@ -130,7 +129,7 @@ def test_qgc_discovers_the_camera_and_a_client_decodes_the_stream(
     cfg.write_text(
         f'[vehicle]\nurl = "{sim.vehicle_url}"\n[hq]\nurl = ""\n'
         f'[camera]\nsource = "{sim.camera_source}"\n[paths]\nstate_dir = "{tmp_path / "s"}"\n'
-        f'[video]\nhost = "127.0.0.1"\nport = {receiver.port}\n' + SIM_DETECTOR_TOML
+        f'[video]\nhost = "127.0.0.1"\nport = {receiver.port}\n'
     )
     log_path = tmp_path / "companion.log"
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
