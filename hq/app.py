@@ -60,6 +60,8 @@ _ACTION_FIRST_RETRY_S = 0.5
 _ACTION_MAX_RETRY_S = 4.0
 _READ_TIMEOUT_S = 0.2  # how long a reader may take to notice the stop
 _MAX_BATCH = 256  # datagrams decoded into one database transaction
+_REFUSAL_LOG_PERIOD_S = 5.0
+_MAX_LOG_KEYS = 1024  # at most one refusal line per sender and kind this often
 _ACK_ACCEPTED = 0
 _ACK_DUPLICATE = 1
 _ACK_REJECTED = 2
@@ -90,7 +92,8 @@ class Route:
 class Counters:
     reports: int = 0
     duplicates: int = 0
-    rejected: int = 0
+    rejected: int = 0  # reports refused for unusable values (acknowledged REJECTED)
+    refused: int = 0  # other messages refused for unusable values
     acks_sent: int = 0
     store_failures: int = 0
     actions_sent: int = 0
@@ -112,6 +115,7 @@ class HqApp:
         self.options = options
         self.out = out
         self.counters = Counters()
+        self._refusals = RateLimitedLog(_REFUSAL_LOG_PERIOD_S)
         self._signing = _hq_signing(options.signing)
         self._encoder = Codec(options.sysid, HQ_COMPONENT_ID, self._signing)
         self._m = self._encoder.module
@@ -242,17 +246,17 @@ class HqApp:
 
     def _on_report(self, msg: Any, route: Route, reports: list[Any]) -> None:
         try:
-            report = wire.report_from_msg(msg)
-        except wire.BadReport as exc:
+            item = wire.incoming_report(msg, time.time())
+        except wire.BadMessage as exc:
             self.counters.rejected += 1
-            log.warning(
-                "rejected report seq %d from system %d: %s",
-                msg.report_seq,
-                msg.get_srcSystem(),
-                exc,
+            self._refusals.say(
+                ("report", msg.get_srcSystem()),
+                f"rejected report seq {msg.report_seq} from system {msg.get_srcSystem()} "
+                f"(not stored, acknowledged REJECTED): {exc}",
             )
             self._send_ack(msg, route, _ACK_REJECTED)
             return
+        report = item.report
         if report.robot_sysid != msg.get_srcSystem():
             log.warning(
                 "report from system %d names robot %d; filed under robot %d",
@@ -260,14 +264,6 @@ class HqApp:
                 report.robot_sysid,
                 report.robot_sysid,
             )
-        item = IncomingReport(
-            report=report,
-            report_seq=int(msg.report_seq),
-            report_time_usec=int(msg.time_usec),
-            merged_into_id=int(msg.merged_into_id),
-            src_compid=int(msg.get_srcComponent()),
-            received_unix_s=time.time(),
-        )
         reports.append((item, msg, route))
 
     def _store_and_ack(self, reports: list[tuple[IncomingReport, Any, Route]]) -> None:
@@ -301,16 +297,11 @@ class HqApp:
         self.counters.acks_sent += 1
 
     def _on_status(self, msg: Any) -> None:
-        status = {
-            "uptime_s": float(msg.uptime_s),
-            "fps": float(msg.fps),
-            "drop_pct": float(msg.drop_pct),
-            "vision_ms": float(msg.vision_ms),
-            "flags": float(msg.flags),
-            "victims_confirmed": float(msg.victims_confirmed),
-            "victims_tentative": float(msg.victims_tentative),
-            "outbox_pending": float(msg.outbox_pending),
-        }
+        try:
+            status = wire.status_from_msg(msg)
+        except wire.BadMessage as exc:
+            self._refuse("RESCUE_STATUS", msg, exc)
+            return
         try:
             self.registry.store_status(
                 msg.get_srcSystem(), msg.get_srcComponent(), status, time.time()
@@ -336,7 +327,11 @@ class HqApp:
             self._event(f"action {seq} acknowledged by robot {msg.get_srcSystem()}")
 
     def _on_origin(self, msg: Any) -> None:
-        origin = wire.origin_from_msg(msg)
+        try:
+            origin = wire.origin_from_msg(msg)
+        except wire.BadMessage as exc:
+            self._refuse("GPS_GLOBAL_ORIGIN", msg, exc)
+            return
         if origin is None:
             return
         known = {r.sysid: r.origin for r in self.registry.robots()}.get(msg.get_srcSystem())
@@ -349,6 +344,13 @@ class HqApp:
             return
         self._dirty = True
         self._event(f"EKF origin of robot {msg.get_srcSystem()}: {origin}")
+
+    def _refuse(self, kind: str, msg: Any, exc: Exception) -> None:
+        self.counters.refused += 1
+        self._refusals.say(
+            (kind, msg.get_srcSystem()),
+            f"refused {kind} from system {msg.get_srcSystem()} (not stored): {exc}",
+        )
 
     # -- sending ---------------------------------------------------------------
 
@@ -454,6 +456,26 @@ class HqApp:
             log.error("export to %s failed: %s", self.options.export_dir, exc)
             return
         self.counters.exports += 1
+
+
+class RateLimitedLog:
+    """WARNING lines per key, at most one per period; the lines left out are counted in the next."""
+
+    def __init__(self, period_s: float) -> None:
+        self._period_s = period_s
+        self._last: dict[tuple[str, int], tuple[float, int]] = {}  # key -> (said at, left out)
+
+    def say(self, key: tuple[str, int], text: str) -> None:
+        now = time.monotonic()
+        said, left_out = self._last.get(key, (-self._period_s, 0))
+        if now - said < self._period_s:
+            self._last[key] = (said, left_out + 1)
+            return
+        more = f" ({left_out} more like it left out)" if left_out else ""
+        log.warning("%s%s", text, more)
+        if len(self._last) >= _MAX_LOG_KEYS:
+            self._last.clear()
+        self._last[key] = (now, 0)
 
 
 def _hq_signing(signing: Signing | None) -> Signing | None:

@@ -30,9 +30,10 @@ from enum import Enum
 from pathlib import Path
 
 from fusion.geodesy import ned_to_geodetic
-from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import GlobalOrigin, TrackState, VictimReport
 from hq import merge
 from hq.merge import Geo, Placed
+from hq.records import BadRecord, RobotStatus, check_origin, report_from_payload, report_payload
 
 log = logging.getLogger(__name__)
 
@@ -130,25 +131,9 @@ class Robot:
     compid: int
     first_heard_unix_s: float
     last_heard_unix_s: float
-    status: dict[str, float] | None
+    status: RobotStatus | None
     status_unix_s: float | None
     origin: GlobalOrigin | None
-
-
-def _payload(report: VictimReport) -> str:
-    d = asdict(report)
-    d["state"] = int(report.state)
-    d["urgency"] = int(report.urgency)
-    return json.dumps(d)
-
-
-def _report(payload: str) -> VictimReport:
-    d = json.loads(payload)
-    d["state"] = TrackState(d["state"])
-    d["urgency"] = Urgency(d["urgency"])
-    (a, b), (c, e) = d["cov_ne_m2"]
-    d["cov_ne_m2"] = ((a, b), (c, e))
-    return VictimReport(**d)
 
 
 def _is_lock_error(exc: sqlite3.OperationalError) -> bool:
@@ -163,6 +148,7 @@ class Registry:
         self.path = path
         self._cache: dict[tuple[int, int], tuple[int, Placed]] | None = None
         self._origins_cache: Origins | None = None
+        self.bad_rows: set[str] = set()  # unusable rows found while reading, said once each
         try:
             self._db = sqlite3.connect(
                 str(path), isolation_level=None, timeout=busy_timeout_ms / 1000.0
@@ -180,6 +166,9 @@ class Registry:
 
     def _setup(self) -> None:
         db = self._db
+        # Text that is not UTF-8 (a damaged file) reads as U+FFFD and then fails its
+        # check, instead of raising out of a whole query.
+        db.text_factory = lambda raw: raw.decode("utf-8", "replace")
         db.execute("PRAGMA journal_mode=WAL")
         # FULL: a commit is on the disk before we acknowledge, even across a power cut.
         db.execute("PRAGMA synchronous=FULL")
@@ -282,7 +271,7 @@ class Registry:
                 item.report_time_usec,
                 item.src_compid,
                 item.received_unix_s,
-                _payload(r),
+                report_payload(r),
             ),
         )
         if cur.rowcount == 0:
@@ -308,7 +297,7 @@ class Registry:
                 item.report_time_usec,
                 item.merged_into_id,
                 item.received_unix_s,
-                _payload(r),
+                report_payload(r),
             ),
         )
         db.execute("UPDATE reports SET applied=1 WHERE id=?", (report_row,))
@@ -388,15 +377,13 @@ class Registry:
                 (sysid, compid, now_unix_s, now_unix_s),
             )
 
-    def store_status(
-        self, sysid: int, compid: int, status: dict[str, float], now_unix_s: float
-    ) -> None:
+    def store_status(self, sysid: int, compid: int, status: RobotStatus, now_unix_s: float) -> None:
         self._begin()
         try:
             self._touch_robot(sysid, compid, now_unix_s)
             self._db.execute(
                 "UPDATE robots SET status=?, status_unix_s=? WHERE sysid=?",
-                (json.dumps(status), now_unix_s, sysid),
+                (status.to_json(), now_unix_s, sysid),
             )
         except BaseException:
             self._db.execute("ROLLBACK")
@@ -482,11 +469,24 @@ class Registry:
         return int(self._db.execute("PRAGMA data_version").fetchone()[0])
 
     def sources(self) -> list[Source]:
+        """Every usable source; a row that does not check (see hq.records) is skipped, said once."""
         rows = self._db.execute(
-            "SELECT hq_id, payload, report_seq, merged_into_id, updated_unix_s FROM sources"
-            " ORDER BY hq_id, robot_sysid, victim_id"
+            "SELECT robot_sysid, victim_id, hq_id, payload, report_seq, merged_into_id,"
+            " updated_unix_s FROM sources ORDER BY hq_id, robot_sysid, victim_id"
         ).fetchall()
-        return [Source(int(h), _report(p), int(s), int(m), float(u)) for h, p, s, m, u in rows]
+        out = []
+        for robot, victim, h, p, s, m, u in rows:
+            try:
+                out.append(Source(int(h), report_from_payload(p), int(s), int(m), float(u)))
+            except (BadRecord, TypeError, ValueError) as exc:
+                self._bad_row(f"sources robot {robot} victim {victim}", exc)
+        return out
+
+    def _bad_row(self, where: str, exc: Exception) -> None:
+        """Say once per row that it is unusable and count it; the row stays in the file."""
+        if where not in self.bad_rows:
+            self.bad_rows.add(where)
+            log.error("database %s: %s is unusable and ignored: %s", self.path, where, exc)
 
     def report_count(self) -> int:
         return int(self._db.execute("SELECT COUNT(*) FROM reports").fetchone()[0])
@@ -499,10 +499,16 @@ class Registry:
         if pending_only:
             sql += " WHERE acked_unix_s IS NULL"
         rows = self._db.execute(sql + " ORDER BY action_seq").fetchall()
-        return [
-            Action(int(a), int(r), int(v), OperatorAction(int(k)), float(c), int(n), ack)
-            for a, r, v, k, c, n, ack in rows
-        ]
+        out = []
+        for a, r, v, k, c, n, ack in rows:
+            try:
+                acked = None if ack is None else float(ack)
+                out.append(
+                    Action(int(a), int(r), int(v), OperatorAction(int(k)), float(c), int(n), acked)
+                )
+            except (TypeError, ValueError) as exc:
+                self._bad_row(f"action {a}", exc)
+        return out
 
     def robots(self) -> list[Robot]:
         rows = self._db.execute(
@@ -511,14 +517,41 @@ class Registry:
         ).fetchall()
         out = []
         for sysid, compid, first, last, status, status_t, lat, lon, alt in rows:
-            origin = GlobalOrigin(lat, lon, alt) if lat is not None else None
-            parsed = json.loads(status) if status else None
-            out.append(Robot(sysid, compid, first, last, parsed, status_t, origin))
+            origin = parsed = None
+            try:
+                if lat is not None:
+                    origin = check_origin(GlobalOrigin(float(lat), float(lon), float(alt)))
+            except (TypeError, ValueError) as exc:
+                self._bad_row(f"origin of robot {sysid}", exc)
+            try:
+                parsed = RobotStatus.from_json(status) if status else None
+            except BadRecord as exc:
+                self._bad_row(f"status of robot {sysid}", exc)
+            try:
+                out.append(
+                    Robot(
+                        int(sysid),
+                        int(compid),
+                        float(first),
+                        float(last),
+                        parsed,
+                        None if status_t is None else float(status_t),
+                        origin,
+                    )
+                )
+            except (TypeError, ValueError) as exc:
+                self._bad_row(f"robot {sysid}", exc)
         return out
 
     def default_origin(self) -> GlobalOrigin | None:
         row = self._db.execute("SELECT value FROM meta WHERE key='default_origin'").fetchone()
-        return None if row is None else GlobalOrigin(**json.loads(row[0]))
+        if row is None:
+            return None
+        try:
+            return check_origin(GlobalOrigin(**json.loads(row[0])))
+        except (TypeError, ValueError) as exc:
+            self._bad_row("the default origin", exc)
+            return None
 
     def origins(self) -> Origins:
         per_robot = {r.sysid: r.origin for r in self.robots() if r.origin is not None}

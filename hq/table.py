@@ -98,17 +98,17 @@ def robot_rows(robots: Sequence[Robot], now_unix_s: float, colour: bool) -> list
     for r in robots:
         silent = now_unix_s - r.last_heard_unix_s > _ROBOT_SILENT_S
         heard = age(now_unix_s - r.last_heard_unix_s)
-        st = r.status or {}
-        flags = int(st.get("flags", 0))
-        health = " ".join(
-            name if flags & bit else f"-{name.lower()}" for bit, name in _STATUS_FLAGS
-        )
-        if not st:
-            health = "(no RESCUE_STATUS yet)"
-        line = (
-            f"{r.sysid:>5} {heard:>7} {st.get('fps', 0.0):>5.1f} "
-            f"{int(st.get('victims_confirmed', 0)):>4} {int(st.get('outbox_pending', 0)):>6}  {health}"
-        )
+        st = r.status
+        if st is None:
+            line = f"{r.sysid:>5} {heard:>7} {'':>5} {'':>4} {'':>6}  (no RESCUE_STATUS yet)"
+        else:
+            health = " ".join(
+                name if st.flags & bit else f"-{name.lower()}" for bit, name in _STATUS_FLAGS
+            )
+            line = (
+                f"{r.sysid:>5} {heard:>7} {st.fps:>5.1f} "
+                f"{st.victims_confirmed:>4} {st.outbox_pending:>6}  {health}"
+            )
         rows.append(_paint(line + "  SILENT", "\x1b[33m", colour) if silent else line)
     if not robots:
         rows.append("   (no robot heard yet)")
