@@ -62,6 +62,8 @@ _READ_TIMEOUT_S = 0.2  # how long a reader may take to notice the stop
 _MAX_BATCH = 256  # datagrams decoded into one database transaction
 _REFUSAL_LOG_PERIOD_S = 5.0
 _MAX_LOG_KEYS = 1024  # at most one refusal line per sender and kind this often
+GPS_GLOBAL_ORIGIN_ID = 49
+HQ_MUST_SIGN_IDS = RESCUE_MESSAGE_IDS | {GPS_GLOBAL_ORIGIN_ID}
 _ACK_ACCEPTED = 0
 _ACK_DUPLICATE = 1
 _ACK_REJECTED = 2
@@ -94,6 +96,7 @@ class Counters:
     duplicates: int = 0
     rejected: int = 0  # reports refused for unusable values (acknowledged REJECTED)
     refused: int = 0  # other messages refused for unusable values
+    signature_refused: int = 0  # unsigned or badly signed where a signature is required
     acks_sent: int = 0
     store_failures: int = 0
     actions_sent: int = 0
@@ -213,6 +216,7 @@ class HqApp:
         reports: list[tuple[IncomingReport, Any, Route]] = []
         for index, peer, data in batch:
             decoder = self._decoder(index, peer)
+            refused_before = decoder.counters.signature_rejected
             messages = decoder.feed(data)
             if self.endpoints[index].datagram:
                 decoder.reset()  # a tail after a whole datagram is garbage
@@ -226,6 +230,15 @@ class HqApp:
                     route = Route(index, peer, True, route.sysid, route.compid)
                     msg = inner
                 self._dispatch(msg, route, reports)
+            refused = decoder.counters.signature_rejected - refused_before
+            if refused:
+                self.counters.signature_refused += refused
+                self._refusals.say(
+                    ("signature", index),
+                    f"{self.endpoints[index].name}: refused {refused} message(s) from "
+                    f"{_peer_text(peer)} unsigned or with a bad signature "
+                    f"({self.counters.signature_refused} in all)",
+                )
         if reports:
             self._store_and_ack(reports)
 
@@ -479,10 +492,18 @@ class RateLimitedLog:
 
 
 def _hq_signing(signing: Signing | None) -> Signing | None:
-    """The HQ demands signatures on every dialect message (a forged report misleads rescuers)."""
+    """With a key, every message that changes the HQ's state must be signed.
+
+    That is every dialect message (a forged report misleads rescuers) and
+    GPS_GLOBAL_ORIGIN (a forged origin moves a robot's victims on the map).
+    """
     if signing is None:
         return None
-    return Signing(signing.key, signing.link_id, must_sign_ids=frozenset(RESCUE_MESSAGE_IDS))
+    return Signing(signing.key, signing.link_id, must_sign_ids=HQ_MUST_SIGN_IDS)
+
+
+def _peer_text(peer: Peer) -> str:
+    return "the link" if peer is None else f"{peer[0]}:{peer[1]}"
 
 
 def _report_line(item: IncomingReport, result: StoreResult) -> str:

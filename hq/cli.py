@@ -172,12 +172,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
             app.run(stop)
             c = app.counters
             log.info(
-                "stopped: %d reports, %d duplicates, %d rejected, %d acks, %d actions acked",
+                "stopped: %d reports, %d duplicates, %d rejected, %d acks, %d actions acked, "
+                "%d refused (bad values), %d refused (signature)",
                 c.reports,
                 c.duplicates,
                 c.rejected,
                 c.acks_sent,
                 c.actions_acked,
+                c.refused,
+                c.signature_refused,
             )
         finally:
             for ep in endpoints:
