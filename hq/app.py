@@ -30,6 +30,9 @@ from typing import Any, TextIO
 from fusion.types import GlobalOrigin
 from hq import export, table, wire
 from hq.registry import (
+    ACK_RESULT_ACCEPTED,
+    ACK_RESULT_DUPLICATE,
+    ACK_RESULT_REJECTED,
     IncomingReport,
     Registry,
     RegistryBusy,
@@ -64,9 +67,6 @@ _REFUSAL_LOG_PERIOD_S = 5.0
 _MAX_LOG_KEYS = 1024  # at most one refusal line per sender and kind this often
 GPS_GLOBAL_ORIGIN_ID = 49
 HQ_MUST_SIGN_IDS = RESCUE_MESSAGE_IDS | {GPS_GLOBAL_ORIGIN_ID}
-_ACK_ACCEPTED = 0
-_ACK_DUPLICATE = 1
-_ACK_REJECTED = 2
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,7 @@ class Counters:
     store_failures: int = 0
     actions_sent: int = 0
     actions_acked: int = 0
+    actions_rejected: int = 0
     foreign_tunnels: int = 0
     exports: int = 0
 
@@ -267,7 +268,7 @@ class HqApp:
                 f"rejected report seq {msg.report_seq} from system {msg.get_srcSystem()} "
                 f"(not stored, acknowledged REJECTED): {exc}",
             )
-            self._send_ack(msg, route, _ACK_REJECTED)
+            self._send_ack(msg, route, ACK_RESULT_REJECTED)
             return
         report = item.report
         if report.robot_sysid != msg.get_srcSystem():
@@ -289,7 +290,7 @@ class HqApp:
             )
             return
         for (item, msg, route), result in zip(reports, results, strict=True):
-            code = _ACK_DUPLICATE if result is StoreResult.DUPLICATE else _ACK_ACCEPTED
+            code = ACK_RESULT_DUPLICATE if result is StoreResult.DUPLICATE else ACK_RESULT_ACCEPTED
             self._send_ack(msg, route, code)
             if result is StoreResult.DUPLICATE:
                 self.counters.duplicates += 1
@@ -327,17 +328,35 @@ class HqApp:
     def _on_ack(self, msg: Any) -> None:
         if msg.acked_msgid != RESCUE_OPERATOR_ACTION_ID or msg.target_system != self.options.sysid:
             return
-        seq = int(msg.seq)
+        seq, result, robot = int(msg.seq), int(msg.result), msg.get_srcSystem()
         try:
-            fresh = self.registry.ack_action(seq, time.time())
+            fresh = self.registry.ack_action(seq, time.time(), result)
         except RegistryError as exc:
-            log.warning("acknowledgement of action %d not stored (sent again): %s", seq, exc)
+            log.warning("answer to action %d not stored (the action is sent again): %s", seq, exc)
             return
         self._outbox.on_ack(msg)
-        if fresh:
+        self._queued.discard(seq)
+        if not fresh:
+            return
+        self._dirty = True
+        if result == ACK_RESULT_ACCEPTED:
             self.counters.actions_acked += 1
-            self._dirty = True
-            self._event(f"action {seq} acknowledged by robot {msg.get_srcSystem()}")
+            self._event(f"action {seq} acknowledged by robot {robot}")
+        elif result == ACK_RESULT_DUPLICATE:
+            self.counters.actions_acked += 1
+            self._event(f"action {seq} acknowledged by robot {robot} (it had applied it already)")
+        else:
+            self.counters.actions_rejected += 1
+            what = (
+                "REJECTED"
+                if result == ACK_RESULT_REJECTED
+                else f"answered with unknown result {result}"
+            )
+            self._event(
+                f"action {seq} {what} by robot {robot}: not applied "
+                "(the robot does not know that victim or cannot do it)",
+                level=logging.WARNING,
+            )
 
     def _on_origin(self, msg: Any) -> None:
         try:
@@ -427,8 +446,8 @@ class HqApp:
 
     # -- output ----------------------------------------------------------------
 
-    def _event(self, line: str) -> None:
-        log.info("%s", line)
+    def _event(self, line: str, level: int = logging.INFO) -> None:
+        log.log(level, "%s", line)
         if not self.options.live_table:
             self.out.write(f"{time.strftime('%H:%M:%S')} {line}\n")
             self.out.flush()

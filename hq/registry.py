@@ -37,7 +37,11 @@ from hq.records import BadRecord, RobotStatus, check_origin, report_from_payload
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: actions.ack_result
+_MIGRATIONS = {1: ("ALTER TABLE actions ADD COLUMN ack_result INTEGER",)}  # from version: SQL
+# action_seq never counts below the seconds since this instant (see _seed_action_seq).
+_ACTION_SEQ_EPOCH_UNIX_S = 1_735_689_600  # 2025-01-01T00:00:00Z
+_MAX_ACTION_SEQ = 0xFFFFFFFF  # RESCUE_OPERATOR_ACTION.action_seq is a uint32
 _BUSY_TIMEOUT_MS = 1500  # a concurrent `rescue-hq mark` holds the lock for milliseconds
 
 _SCHEMA = """
@@ -69,7 +73,7 @@ CREATE TABLE IF NOT EXISTS actions (
     action_seq INTEGER PRIMARY KEY AUTOINCREMENT,
     robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL, action INTEGER NOT NULL,
     created_unix_s REAL NOT NULL, sent_count INTEGER NOT NULL DEFAULT 0,
-    last_sent_unix_s REAL, acked_unix_s REAL
+    last_sent_unix_s REAL, acked_unix_s REAL, ack_result INTEGER
 );
 """
 
@@ -80,6 +84,11 @@ class RegistryError(Exception):
 
 class RegistryBusy(RegistryError):
     """A write did not get the database lock in time; nothing was stored."""
+
+
+ACK_RESULT_ACCEPTED = 0  # RESCUE_ACK_RESULT
+ACK_RESULT_DUPLICATE = 1
+ACK_RESULT_REJECTED = 2
 
 
 class StoreResult(Enum):
@@ -114,6 +123,15 @@ class Action:
     created_unix_s: float
     sent_count: int
     acked_unix_s: float | None
+    ack_result: int | None = None  # RESCUE_ACK_RESULT the robot answered with
+
+    @property
+    def rejected(self) -> bool:
+        """The robot answered, and did not apply it (REJECTED, or a result we do not know)."""
+        return self.ack_result is not None and self.ack_result not in (
+            ACK_RESULT_ACCEPTED,
+            ACK_RESULT_DUPLICATE,
+        )
 
 
 @dataclass(frozen=True)
@@ -189,15 +207,41 @@ class Registry:
             version = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
             if version is None:
                 db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+            elif int(version[0]) in _MIGRATIONS:
+                for old in range(int(version[0]), SCHEMA_VERSION):
+                    for statement in _MIGRATIONS[old]:
+                        db.execute(statement)
+                db.execute(
+                    "UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),)
+                )
             elif int(version[0]) != SCHEMA_VERSION:
                 raise RegistryError(
                     f"database {self.path}: schema version {version[0]}, "
                     f"this rescue-hq knows {SCHEMA_VERSION}"
                 )
+            self._seed_action_seq()
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
             raise
+
+    def _seed_action_seq(self) -> None:
+        """Make the next action_seq at least the seconds since 2025 on the HQ's clock.
+
+        A robot drops an action_seq it has seen from this HQ as a duplicate. Within
+        one registry AUTOINCREMENT never goes back; across registries (a new file, or
+        a corrupt one moved aside) the clock keeps numbers apart: an older registry
+        could only reach them with more than one action per second since it began.
+        """
+        now_s = int(time.time()) - _ACTION_SEQ_EPOCH_UNIX_S
+        floor = max(0, min(now_s, _MAX_ACTION_SEQ // 2))  # a clock gone wild is ignored
+        row = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name='actions'").fetchone()
+        if row is None:
+            self._db.execute(
+                "INSERT INTO sqlite_sequence (name, seq) VALUES ('actions', ?)", (floor,)
+            )
+        elif int(row[0]) < floor:
+            self._db.execute("UPDATE sqlite_sequence SET seq=? WHERE name='actions'", (floor,))
 
     def close(self) -> None:
         db = getattr(self, "_db", None)
@@ -430,11 +474,12 @@ class Registry:
                 " VALUES (?, ?, ?, ?)",
                 (robot_sysid, victim_id, action.value, time.time()),
             )
+            if cur.lastrowid is None or cur.lastrowid > _MAX_ACTION_SEQ:
+                raise RegistryError(f"database {self.path}: action numbers exhausted")
         except BaseException:
             self._db.execute("ROLLBACK")
             raise
         self._commit()
-        assert cur.lastrowid is not None
         return int(cur.lastrowid)
 
     def note_action_sent(self, action_seq: int, now_unix_s: float) -> None:
@@ -443,12 +488,13 @@ class Registry:
             (now_unix_s, action_seq),
         )
 
-    def ack_action(self, action_seq: int, now_unix_s: float) -> bool:
-        """Mark an action acknowledged; False when it was unknown or already acked."""
+    def ack_action(self, action_seq: int, now_unix_s: float, result: int) -> bool:
+        """Record the robot's answer to an action; False when unknown or already answered."""
         self._begin()
         cur = self._db.execute(
-            "UPDATE actions SET acked_unix_s=? WHERE action_seq=? AND acked_unix_s IS NULL",
-            (now_unix_s, action_seq),
+            "UPDATE actions SET acked_unix_s=?, ack_result=? WHERE action_seq=?"
+            " AND acked_unix_s IS NULL",
+            (now_unix_s, result, action_seq),
         )
         self._commit()
         return cur.rowcount == 1
@@ -494,17 +540,27 @@ class Registry:
     def actions(self, *, pending_only: bool = False) -> list[Action]:
         sql = (
             "SELECT action_seq, robot_sysid, victim_id, action, created_unix_s, sent_count,"
-            " acked_unix_s FROM actions"
+            " acked_unix_s, ack_result FROM actions"
         )
         if pending_only:
             sql += " WHERE acked_unix_s IS NULL"
         rows = self._db.execute(sql + " ORDER BY action_seq").fetchall()
         out = []
-        for a, r, v, k, c, n, ack in rows:
+        for a, r, v, k, c, n, ack, result in rows:
             try:
                 acked = None if ack is None else float(ack)
+                answer = None if result is None else int(result)
                 out.append(
-                    Action(int(a), int(r), int(v), OperatorAction(int(k)), float(c), int(n), acked)
+                    Action(
+                        int(a),
+                        int(r),
+                        int(v),
+                        OperatorAction(int(k)),
+                        float(c),
+                        int(n),
+                        acked,
+                        answer,
+                    )
                 )
             except (TypeError, ValueError) as exc:
                 self._bad_row(f"action {a}", exc)

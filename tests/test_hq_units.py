@@ -148,7 +148,7 @@ def test_actions_need_a_known_victim_and_count_as_pending(tmp_path: Path) -> Non
         seq = reg.add_action(3, 4, OperatorAction.FALSE_ALARM)
         (v,) = hq_victims(reg)
         assert (v.state, v.actions_pending) == (TrackState.FALSE_ALARM, 1)
-        assert reg.ack_action(seq, 1.0) and not reg.ack_action(seq, 2.0)
+        assert reg.ack_action(seq, 1.0, 0) and not reg.ack_action(seq, 2.0, 0)
         assert hq_victims(reg)[0].actions_pending == 0
 
 
