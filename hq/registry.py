@@ -11,8 +11,8 @@ Tables:
 A batch of reports is written in one transaction; the caller acknowledges only
 after ``store_reports`` returned, i.e. after the commit reached the disk: nothing
 acknowledged is ever lost. A report is a duplicate when (robot, report_seq,
-victim_id, report time) was stored before. An older report (by report time, then
-report_seq) than the one a source holds is stored but does not change the source.
+victim_id, report time) was stored before. An older report (by report_seq, then
+report time) than the one a source holds is stored but does not change the source.
 
 Errors: ``RegistryError`` (cannot open: corrupt, not SQLite, locked, foreign schema)
 names the file; ``RegistryBusy`` (a write could not get the lock in time).
@@ -326,7 +326,9 @@ class Registry:
             " WHERE robot_sysid=? AND victim_id=?",
             (r.robot_sysid, r.victim_id),
         ).fetchone()
-        if held is not None and (item.report_time_usec, item.report_seq) <= (held[0], held[1]):
+        # Newer means a higher report_seq (the robot's own monotonic count); its wall
+        # clock only breaks ties, so a clock step cannot reorder a robot's reports.
+        if held is not None and (item.report_seq, item.report_time_usec) <= (held[1], held[0]):
             return StoreResult.STALE
         hq_id = self._place(item, None if held is None else int(held[2]))
         db.execute(

@@ -207,3 +207,22 @@ def test_table_colours_only_on_a_terminal(tmp_path: Path) -> None:
     assert "CRITICAL" in plain and "1:1" in plain and "2m05s" in plain
     coloured = table.render(header, victims, robots, now, colour=True)
     assert "\x1b[1;97;41mCRITICAL" in coloured  # red
+
+
+def test_newer_report_wins_by_sequence_even_when_the_robot_clock_stepped_back(
+    tmp_path: Path,
+) -> None:
+    # The robot's clock was corrected an hour back between two reports: report_seq,
+    # not the wall clock, says which is newer.
+    with Registry(tmp_path / "r.sqlite") as reg:
+        t = 1_700_000_000_000_000
+        first = incoming(report(1, 1, 0.0, 0.0, urgency=Urgency.LIGHT), 11, t_usec=t)
+        after_step = incoming(
+            report(1, 1, 0.2, 0.0, urgency=Urgency.CRITICAL), 12, t_usec=t - 3_600_000_000
+        )
+        assert reg.store_reports([first]) == [StoreResult.ACCEPTED]
+        assert reg.store_reports([after_step]) == [StoreResult.ACCEPTED]
+        (src,) = reg.sources()
+        assert (src.report_seq, src.report.urgency) == (12, Urgency.CRITICAL)
+        late = incoming(report(1, 1, 9.0, 0.0), 10, t_usec=t + 10_000_000)  # older seq, later clock
+        assert reg.store_reports([late]) == [StoreResult.STALE]
