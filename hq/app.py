@@ -7,8 +7,10 @@ next timer (HEARTBEAT at 1 Hz, action resends, the table at <= 2 Hz, exports).
 Order of work for victim reports, which is what makes "acknowledged" mean
 "stored": decode a burst of datagrams, store all their reports in one SQLite
 transaction (synchronous=FULL), and only after the commit returned send the
-RESCUE_ACKs. A locked or failing database means no acknowledgement: the robots
-resend and the HQ stores them when it can.
+RESCUE_ACKs. A locked or failing database (a full disk) means no acknowledgement:
+the reports are held in memory and written again every second, the robots keep
+resending, and a full disk is said loudly (ERROR and a STATUSTEXT every 30 s, a
+line on the table) until it is over; then the held reports are stored and acked.
 
 Replies travel the way the message came: the same link, the same peer address,
 and, when the report arrived inside a TUNNEL (through an autopilot or MAVProxy),
@@ -37,6 +39,7 @@ from hq.registry import (
     Registry,
     RegistryBusy,
     RegistryError,
+    RegistryFull,
     StoreResult,
 )
 from hq.transport import Endpoint, Peer
@@ -63,6 +66,10 @@ _ACTION_FIRST_RETRY_S = 0.5
 _ACTION_MAX_RETRY_S = 4.0
 _READ_TIMEOUT_S = 0.2  # how long a reader may take to notice the stop
 _MAX_BATCH = 256  # datagrams decoded into one database transaction
+_STORE_RETRY_S = 1.0  # how often reports held from a failed write are tried again
+_STORE_NOTICE_PERIOD_S = 30.0  # repeat the "cannot store" ERROR and STATUSTEXT this often
+_MAX_UNSTORED = 10_000  # reports held in memory; beyond, the oldest wait for the robots' resend
+MAV_SEVERITY_CRITICAL = 2
 _REFUSAL_LOG_PERIOD_S = 5.0
 _MAX_LOG_KEYS = 1024  # at most one refusal line per sender and kind this often
 GPS_GLOBAL_ORIGIN_ID = 49
@@ -135,6 +142,9 @@ class HqApp:
         self._dirty = True
         self._last_draw_mono_s = 0.0
         self._db_version = -1
+        self._unstored = UnstoredReports(_MAX_UNSTORED)
+        self._store_failing_since: float | None = None
+        self._next_store_notice = 0.0
 
     # -- lifecycle -------------------------------------------------------------
 
@@ -153,6 +163,7 @@ class HqApp:
         )
         next_heartbeat = 0.0
         next_db_check = 0.0
+        next_store_retry = 0.0
         try:
             while not (self._stop.is_set() or outer.is_set()):
                 now = time.monotonic()
@@ -164,10 +175,15 @@ class HqApp:
                 if now >= next_db_check:
                     self._refresh_actions()
                     next_db_check = now + _DB_CHECK_PERIOD_S
+                if self._unstored and now >= next_store_retry:
+                    self._store_and_ack([])  # reports held from a failed write
+                    next_store_retry = now + _STORE_RETRY_S
                 self._outbox.poll()
                 self._refresh_output(now)
                 due = self._outbox.seconds_until_due()
                 wake = min(next_heartbeat, next_db_check, now + (0.5 if due is None else due))
+                if self._unstored:
+                    wake = min(wake, next_store_retry)
                 if deadline is not None:
                     wake = min(wake, deadline)
                 self._process(self._collect(max(0.0, wake - time.monotonic())))
@@ -281,14 +297,32 @@ class HqApp:
         reports.append((item, msg, route))
 
     def _store_and_ack(self, reports: list[tuple[IncomingReport, Any, Route]]) -> None:
+        """Store the new reports and those held from a failed write; ack only what is stored."""
+        self._unstored.add(reports)
+        reports = self._unstored.entries()
         try:
             results = self.registry.store_reports([item for item, _, _ in reports])
-        except (RegistryBusy, RegistryError) as exc:
+        except RegistryBusy as exc:
             self.counters.store_failures += 1
             log.warning(
-                "%d report(s) not stored, not acknowledged (robots resend): %s", len(reports), exc
+                "%d report(s) not stored, not acknowledged (held, robots resend): %s",
+                len(reports),
+                exc,
             )
             return
+        except RegistryError as exc:  # RegistryFull, or the file cannot be written
+            self.counters.store_failures += 1
+            self._say_cannot_store(exc)
+            return
+        self._unstored.clear()
+        if self._store_failing_since is not None:
+            log.warning(
+                "database %s writable again: %d held report(s) stored and acknowledged",
+                self.registry.path,
+                len(reports),
+            )
+            self._store_failing_since = None
+            self._dirty = True
         for (item, msg, route), result in zip(reports, results, strict=True):
             code = ACK_RESULT_DUPLICATE if result is StoreResult.DUPLICATE else ACK_RESULT_ACCEPTED
             self._send_ack(msg, route, code)
@@ -298,6 +332,36 @@ class HqApp:
             self.counters.reports += 1
             self._dirty = True
             self._event(_report_line(item, result))
+
+    def _say_cannot_store(self, exc: RegistryError) -> None:
+        """Loudly, when writing starts failing and then every _STORE_NOTICE_PERIOD_S."""
+        now = time.monotonic()
+        if self._store_failing_since is None:
+            self._store_failing_since = now
+            self._next_store_notice = now
+            self._dirty = True
+        if now < self._next_store_notice:
+            return
+        self._next_store_notice = now + _STORE_NOTICE_PERIOD_S
+        full = isinstance(exc, RegistryFull)
+        log.error(
+            "%s: %d report(s) held in memory, NOT stored and NOT acknowledged; "
+            "retrying every %.0f s (robots keep resending; nothing acknowledged is lost): %s",
+            "DISK FULL" if full else "DATABASE WRITE FAILED",
+            len(self._unstored),
+            _STORE_RETRY_S,
+            exc,
+        )
+        text = f"rescue-hq: {'disk full' if full else 'db write failed'}, {len(self._unstored)} unstored"
+        self._broadcast(
+            self._m.MAVLink_statustext_message(MAV_SEVERITY_CRITICAL, text.encode()[:50])
+        )
+
+    def storage_warning(self) -> str | None:
+        """A line for the table while reports cannot be stored."""
+        if self._store_failing_since is None:
+            return None
+        return f"CANNOT STORE: {len(self._unstored)} report(s) held in memory, not acknowledged"
 
     def _send_ack(self, msg: Any, route: Route, result: int) -> None:
         ack = self._m.MAVLink_rescue_ack_message(
@@ -394,10 +458,14 @@ class HqApp:
 
     def _send_heartbeat(self) -> None:
         m = self._m
-        hb = m.MAVLink_heartbeat_message(
-            m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE, 3
+        self._broadcast(
+            m.MAVLink_heartbeat_message(
+                m.MAV_TYPE_GCS, m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE, 3
+            )
         )
-        data = self._encoder.encode(hb)
+
+    def _broadcast(self, msg: Any) -> None:
+        data = self._encoder.encode(msg)
         for ep in self.endpoints:
             ep.broadcast(data)
 
@@ -474,6 +542,7 @@ class HqApp:
                 [ep.name for ep in self.endpoints],
                 stored,
                 self._signing is not None,
+                self.storage_warning(),
             )
             text = table.render(header, victims, robots, time.time(), colour=True)
             self.out.write(table.CLEAR_SCREEN + text)
@@ -488,6 +557,40 @@ class HqApp:
             log.error("export to %s failed: %s", self.options.export_dir, exc)
             return
         self.counters.exports += 1
+
+
+class UnstoredReports:
+    """Reports received but not stored yet (the registry could not be written), in order.
+
+    One entry per report (robot, report_seq, victim, report time), with the route
+    of its latest copy. None of them was acknowledged: past ``limit`` the oldest is
+    dropped and counted, and the robot's resend brings it back.
+    """
+
+    def __init__(self, limit: int) -> None:
+        self._limit = limit
+        self._items: dict[tuple[int, int, int, int], tuple[IncomingReport, Any, Route]] = {}
+        self.dropped = 0
+
+    def add(self, reports: list[tuple[IncomingReport, Any, Route]]) -> None:
+        for entry in reports:
+            item = entry[0]
+            key = (item.report.robot_sysid, item.report_seq, item.report.victim_id,
+                   item.report_time_usec)  # fmt: skip
+            self._items.pop(key, None)
+            self._items[key] = entry
+        while len(self._items) > self._limit:
+            del self._items[next(iter(self._items))]
+            self.dropped += 1
+
+    def entries(self) -> list[tuple[IncomingReport, Any, Route]]:
+        return list(self._items.values())
+
+    def clear(self) -> None:
+        self._items.clear()
+
+    def __len__(self) -> int:
+        return len(self._items)
 
 
 class RateLimitedLog:

@@ -155,7 +155,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     registry = _open_registry(args.db, must_exist=False)
     try:
         if args.origin is not None:
-            registry.set_default_origin(args.origin)
+            try:
+                registry.set_default_origin(args.origin)
+            except RegistryError as exc:  # a full disk: the origin still serves this run
+                log.error("--origin not stored for export/list (used for this run): %s", exc)
         endpoints = _open_endpoints(specs)
         try:
             options = HqOptions(

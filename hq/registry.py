@@ -15,16 +15,19 @@ victim_id, report time) was stored before. An older report (by report_seq, then
 report time) than the one a source holds is stored but does not change the source.
 
 Errors: ``RegistryError`` (cannot open: corrupt, not SQLite, locked, foreign schema)
-names the file; ``RegistryBusy`` (a write could not get the lock in time).
+names the file; ``RegistryBusy`` (a write could not get the lock in time);
+``RegistryFull`` (the disk is full). A failed write leaves nothing of itself behind
+and the registry usable: the next write, once space returns, works.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sqlite3
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from enum import Enum
 from pathlib import Path
@@ -84,6 +87,10 @@ class RegistryError(Exception):
 
 class RegistryBusy(RegistryError):
     """A write did not get the database lock in time; nothing was stored."""
+
+
+class RegistryFull(RegistryError):
+    """The disk is full; nothing of the write was stored."""
 
 
 ACK_RESULT_ACCEPTED = 0  # RESCUE_ACK_RESULT
@@ -154,11 +161,6 @@ class Robot:
     origin: GlobalOrigin | None
 
 
-def _is_lock_error(exc: sqlite3.OperationalError) -> bool:
-    text = str(exc).lower()
-    return "locked" in text or "busy" in text
-
-
 class Registry:
     """The SQLite registry. One instance per thread (sqlite3 connections are not shared)."""
 
@@ -219,10 +221,9 @@ class Registry:
                     f"database {self.path}: schema version {version[0]}, "
                     f"this rescue-hq knows {SCHEMA_VERSION}"
                 )
-            self._seed_action_seq()
             db.execute("COMMIT")
         except BaseException:
-            db.execute("ROLLBACK")
+            self._rollback()
             raise
 
     def _seed_action_seq(self) -> None:
@@ -257,49 +258,60 @@ class Registry:
 
     # -- writing ---------------------------------------------------------------
 
-    def _begin(self) -> None:
+    @contextlib.contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction: committed when the block ends, rolled back on any error.
+
+        SQLite errors become RegistryBusy (locked), RegistryFull (disk full) or
+        RegistryError; nothing of the block is stored then. SQLite may already have
+        rolled back by itself (it does on SQLITE_FULL), so the rollback is only
+        attempted inside a transaction.
+        """
         try:
             self._db.execute("BEGIN IMMEDIATE")
-        except sqlite3.OperationalError as exc:
-            if _is_lock_error(exc):
-                raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
-            raise RegistryError(f"database {self.path}: {exc}") from None
-
-    def _commit(self) -> None:
+        except sqlite3.Error as exc:
+            raise self._failure(exc) from None
         try:
+            yield self._db
             self._db.execute("COMMIT")
-        except sqlite3.OperationalError as exc:
+        except sqlite3.Error as exc:
+            self._rollback()
+            raise self._failure(exc) from None
+        except BaseException:
+            self._rollback()
+            raise
+
+    def _rollback(self) -> None:
+        if not self._db.in_transaction:
+            return
+        try:
             self._db.execute("ROLLBACK")
-            if _is_lock_error(exc):
-                raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
-            raise RegistryError(f"database {self.path}: {exc}") from None
+        except sqlite3.Error as exc:  # nothing more to undo; the connection stays usable
+            log.warning("database %s: rollback failed: %s", self.path, exc)
+
+    def _failure(self, exc: sqlite3.Error) -> RegistryError:
+        code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+        text = str(exc)
+        if code == sqlite3.SQLITE_FULL or "disk is full" in text:
+            return RegistryFull(f"database {self.path}: the disk is full ({text})")
+        if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED) or "locked" in text:
+            return RegistryBusy(f"database {self.path} is locked: {text}")
+        return RegistryError(f"database {self.path}: {text}")
 
     def store_reports(self, batch: Sequence[IncomingReport]) -> list[StoreResult]:
         """Store a batch durably (one transaction); the result of each, in order.
 
-        Raises RegistryBusy (nothing stored) when the lock is not free in time.
+        Raises RegistryBusy (the lock was not free in time) or RegistryFull (the
+        disk is full); nothing of the batch is stored then.
         """
         if not batch:
             return []
-        self._begin()
         try:
-            results = [self._store_one(item) for item in batch]
-        except sqlite3.OperationalError as exc:
-            self._forget_cache()
-            self._db.execute("ROLLBACK")
-            if _is_lock_error(exc):
-                raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
-            raise RegistryError(f"database {self.path}: {exc}") from None
+            with self._write():
+                return [self._store_one(item) for item in batch]
         except BaseException:
-            self._forget_cache()
-            self._db.execute("ROLLBACK")
+            self._forget_cache()  # it may hold sources of the rolled-back batch
             raise
-        try:
-            self._commit()
-        except RegistryError:
-            self._forget_cache()
-            raise
-        return results
 
     def _store_one(self, item: IncomingReport) -> StoreResult:
         r = item.report
@@ -424,93 +436,67 @@ class Registry:
             )
 
     def store_status(self, sysid: int, compid: int, status: RobotStatus, now_unix_s: float) -> None:
-        self._begin()
-        try:
+        with self._write() as db:
             self._touch_robot(sysid, compid, now_unix_s)
-            self._db.execute(
+            db.execute(
                 "UPDATE robots SET status=?, status_unix_s=? WHERE sysid=?",
                 (status.to_json(), now_unix_s, sysid),
             )
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
 
     def set_robot_origin(self, sysid: int, compid: int, origin: GlobalOrigin) -> None:
         self._forget_cache()
-        self._begin()
-        try:
+        with self._write() as db:
             self._touch_robot(sysid, compid, time.time())
-            self._db.execute(
+            db.execute(
                 "UPDATE robots SET origin_lat_deg=?, origin_lon_deg=?, origin_alt_m=?"
                 " WHERE sysid=?",
                 (origin.lat_deg, origin.lon_deg, origin.alt_m, sysid),
             )
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
 
     def set_default_origin(self, origin: GlobalOrigin | None) -> None:
         value = None if origin is None else json.dumps(asdict(origin))
         self._forget_cache()
-        self._begin()
-        if value is None:
-            self._db.execute("DELETE FROM meta WHERE key='default_origin'")
-        else:
-            self._db.execute("INSERT OR REPLACE INTO meta VALUES ('default_origin', ?)", (value,))
-        self._commit()
+        with self._write() as db:
+            if value is None:
+                db.execute("DELETE FROM meta WHERE key='default_origin'")
+            else:
+                db.execute("INSERT OR REPLACE INTO meta VALUES ('default_origin', ?)", (value,))
 
     def add_action(self, robot_sysid: int, victim_id: int, action: OperatorAction) -> int:
         """Record an operator action; its action_seq. KeyError for an unknown victim."""
-        self._begin()
-        try:
-            known = self._db.execute(
+        with self._write() as db:
+            known = db.execute(
                 "SELECT 1 FROM sources WHERE robot_sysid=? AND victim_id=?",
                 (robot_sysid, victim_id),
             ).fetchone()
             if known is None:
                 raise KeyError(f"robot {robot_sysid} has reported no victim {victim_id}")
-            cur = self._db.execute(
+            self._seed_action_seq()
+            cur = db.execute(
                 "INSERT INTO actions (robot_sysid, victim_id, action, created_unix_s)"
                 " VALUES (?, ?, ?, ?)",
                 (robot_sysid, victim_id, action.value, time.time()),
             )
             if cur.lastrowid is None or cur.lastrowid > _MAX_ACTION_SEQ:
                 raise RegistryError(f"database {self.path}: action numbers exhausted")
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
         return int(cur.lastrowid)
 
     def note_action_sent(self, action_seq: int, now_unix_s: float) -> None:
-        self._simple_write(
-            "UPDATE actions SET sent_count=sent_count+1, last_sent_unix_s=? WHERE action_seq=?",
-            (now_unix_s, action_seq),
-        )
+        with self._write() as db:
+            db.execute(
+                "UPDATE actions SET sent_count=sent_count+1, last_sent_unix_s=? WHERE action_seq=?",
+                (now_unix_s, action_seq),
+            )
 
     def ack_action(self, action_seq: int, now_unix_s: float, result: int) -> bool:
         """Record the robot's answer to an action; False when unknown or already answered."""
-        self._begin()
-        cur = self._db.execute(
-            "UPDATE actions SET acked_unix_s=?, ack_result=? WHERE action_seq=?"
-            " AND acked_unix_s IS NULL",
-            (now_unix_s, result, action_seq),
-        )
-        self._commit()
+        with self._write() as db:
+            cur = db.execute(
+                "UPDATE actions SET acked_unix_s=?, ack_result=? WHERE action_seq=?"
+                " AND acked_unix_s IS NULL",
+                (now_unix_s, result, action_seq),
+            )
         return cur.rowcount == 1
-
-    def _simple_write(self, sql: str, args: tuple[object, ...]) -> None:
-        self._begin()
-        try:
-            self._db.execute(sql, args)
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
-
-    # -- reading ---------------------------------------------------------------
 
     def data_version(self) -> int:
         """Changes whenever another connection commits (cheap; see PRAGMA data_version)."""

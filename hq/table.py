@@ -41,6 +41,7 @@ class Header:
     links: Sequence[str]
     reports_stored: int
     signing: bool
+    warning: str | None = None  # e.g. the disk is full: shown in red under the title
 
 
 def age(seconds: float) -> str:
@@ -137,7 +138,10 @@ def render(
         f" ({critical} critical open)  reports {header.reports_stored}"
         f"  waiting for ack {waiting}"
     )
-    lines = [_paint(title, _BOLD, colour), ""]
+    lines = [_paint(title, _BOLD, colour)]
+    if header.warning:
+        lines.append(_paint(header.warning, _URGENCY_COLOUR[Urgency.CRITICAL], colour))
+    lines.append("")
     lines += victim_rows(victims, now_unix_s, colour)
     lines.append("")
     lines += robot_rows(robots, now_unix_s, colour)
