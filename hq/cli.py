@@ -24,9 +24,9 @@ from pathlib import Path
 from types import FrameType
 
 from fusion.types import GlobalOrigin
-from hq import export, table
+from hq import epoch, export, table
 from hq.app import HqApp, HqOptions
-from hq.registry import OperatorAction, Registry, RegistryError
+from hq.registry import OperatorAction, Registry, RegistryCorrupt, RegistryError
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
 from hq.view import hq_victims
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError
@@ -135,15 +135,34 @@ def _list_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _open_registry(path: Path, *, must_exist: bool) -> Registry:
+def _open_registry(path: Path, *, must_exist: bool, recover: bool = False) -> Registry:
+    """The registry; with ``recover`` (run), a damaged file is moved aside, said once."""
     if must_exist and not path.exists():
         raise UsageError(f"database {path}: no such file")
     if path.is_dir():
         raise UsageError(f"database {path}: is a directory")
     try:
         return Registry(path)
+    except RegistryCorrupt as exc:
+        if not recover:
+            raise UsageError(str(exc)) from None
+        damage = exc
     except RegistryError as exc:
         raise UsageError(str(exc)) from None
+    try:
+        aside = epoch.move_aside(path)
+        registry = Registry(path)
+    except (OSError, RegistryError) as exc:
+        raise UsageError(f"{damage}; and it cannot be replaced: {exc}") from None
+    log.error(
+        "%s; moved it to %s and started a new registry in new ID epoch %d: "
+        "HQ victim IDs go on from %d, none of the old file's is reused",
+        damage,
+        aside.name,
+        registry.epoch,
+        epoch.first_id(registry.epoch),
+    )
+    return registry
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -152,7 +171,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         signing = load_signing(args.signing_key) if args.signing_key else None
     except (LinkSpecError, SigningError) as exc:
         raise UsageError(str(exc)) from None
-    registry = _open_registry(args.db, must_exist=False)
+    registry = _open_registry(args.db, must_exist=False, recover=True)
     try:
         if args.origin is not None:
             try:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from fusion.geodesy import ned_to_geodetic
 from fusion.types import GlobalOrigin, TrackState, VictimReport
-from hq import merge
+from hq import epoch, merge
 from hq.merge import Geo, Placed
 from hq.records import BadRecord, RobotStatus, check_origin, report_from_payload, report_payload
 
@@ -87,6 +87,10 @@ class RegistryError(Exception):
 
 class RegistryBusy(RegistryError):
     """A write did not get the database lock in time; nothing was stored."""
+
+
+class RegistryCorrupt(RegistryError):
+    """The file is damaged (not SQLite, malformed, or emptied); `run` moves it aside."""
 
 
 class RegistryFull(RegistryError):
@@ -169,6 +173,9 @@ class Registry:
         self._cache: dict[tuple[int, int], tuple[int, Placed]] | None = None
         self._origins_cache: Origins | None = None
         self.bad_rows: set[str] = set()  # unusable rows found while reading, said once each
+        self.epoch = 1
+        if path.is_file() and path.stat().st_size == 0:
+            raise RegistryCorrupt(f"database {path} is empty (0 bytes): its contents were lost")
         try:
             self._db = sqlite3.connect(
                 str(path), isolation_level=None, timeout=busy_timeout_ms / 1000.0
@@ -179,7 +186,10 @@ class Registry:
             self._setup()
         except sqlite3.DatabaseError as exc:
             self._db.close()
-            raise RegistryError(f"database {path}: {_describe(exc)}") from None
+            code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+            damaged = code in (sqlite3.SQLITE_CORRUPT, sqlite3.SQLITE_NOTADB)
+            kind = RegistryCorrupt if damaged else RegistryError
+            raise kind(f"database {path}: {_describe(exc)}") from None
         except RegistryError:
             self._db.close()
             raise
@@ -195,7 +205,7 @@ class Registry:
         db.execute("PRAGMA foreign_keys=ON")
         row = db.execute("PRAGMA quick_check").fetchone()
         if row is None or row[0] != "ok":
-            raise RegistryError(f"database {self.path}: integrity check failed: {row}")
+            raise RegistryCorrupt(f"database {self.path}: integrity check failed: {row}")
         tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
         if tables and "meta" not in tables:
             raise RegistryError(
@@ -209,6 +219,7 @@ class Registry:
             version = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
             if version is None:
                 db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+                self._start_epoch(epoch.last_epoch(self.path) + 1)
             elif int(version[0]) in _MIGRATIONS:
                 for old in range(int(version[0]), SCHEMA_VERSION):
                     for statement in _MIGRATIONS[old]:
@@ -221,10 +232,29 @@ class Registry:
                     f"database {self.path}: schema version {version[0]}, "
                     f"this rescue-hq knows {SCHEMA_VERSION}"
                 )
+            row = db.execute("SELECT value FROM meta WHERE key='epoch'").fetchone()
+            self.epoch = 1 if row is None else int(row[0])  # no epoch yet: an older registry
+            epoch.record(self.path, self.epoch)  # a lost epoch file is written again
             db.execute("COMMIT")
+        except epoch.EpochError as exc:
+            self._rollback()
+            raise RegistryError(str(exc)) from None
         except BaseException:
             self._rollback()
             raise
+
+    def _start_epoch(self, number: int) -> None:
+        """A new registry: HQ victim IDs from epoch ``number``'s first ID on.
+
+        The epoch file is written before this transaction commits, so an epoch
+        whose IDs were handed out is always on record.
+        """
+        self._db.execute("INSERT INTO meta VALUES ('epoch', ?)", (str(number),))
+        self._db.execute(
+            "INSERT INTO sqlite_sequence (name, seq) VALUES ('hq_victims', ?)",
+            (epoch.first_id(number) - 1,),
+        )
+        epoch.record(self.path, number)
 
     def _seed_action_seq(self) -> None:
         """Make the next action_seq at least the seconds since 2025 on the HQ's clock.
@@ -420,6 +450,10 @@ class Registry:
             "INSERT INTO hq_victims (created_unix_s) VALUES (?)", (item.received_unix_s,)
         )
         assert cur.lastrowid is not None  # sqlite3 sets it after an INSERT
+        if cur.lastrowid >= epoch.first_id(self.epoch + 1):
+            raise RegistryError(
+                f"database {self.path}: HQ victim IDs of epoch {self.epoch} used up"
+            )
         return int(cur.lastrowid)
 
     def _touch_robot(self, sysid: int, compid: int, now_unix_s: float) -> None:

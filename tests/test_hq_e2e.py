@@ -214,19 +214,6 @@ def test_operator_action_resent_until_the_robot_acks(start_hq) -> None:
         assert hq_victims(reg)[0].state == TrackState.RESCUED
 
 
-def test_corrupt_database_exits_2_with_one_line(tmp_path: Path) -> None:
-    db = tmp_path / "hq.sqlite"
-    db.write_bytes(b"this is not a database, it is a shopping list\n" * 100)
-    result = subprocess.run(
-        [sys.executable, "-m", "hq.cli", "--listen", "udpin:127.0.0.1:0", "--db", str(db),
-         "--no-table", "--duration-s", "5"],
-        cwd=REPO, capture_output=True, text=True, timeout=30,
-    )  # fmt: skip
-    assert result.returncode == 2
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and str(db) in lines[0] and "Traceback" not in result.stderr
-
-
 def test_registry_survives_kill_9_and_restart(start_hq, tmp_path: Path) -> None:
     hq = start_hq()
     with SimRobot(6, hq.address) as robot:
