@@ -82,3 +82,18 @@ def test_hq_refuses_unsigned_origin_and_forged_reports(start_hq, tmp_path: Path)
     assert 9 not in origins or origins[9] is None  # the unsigned origin changed nothing
     assert origins[10] is not None
     assert any("unsigned or with a bad signature" in line for line in hq.stderr)
+
+
+def test_signed_report_inside_a_signed_tunnel_is_acked(start_hq, tmp_path: Path) -> None:
+    # The robot signs the inner frame first and the TUNNEL around it next: the
+    # envelope's timestamp is the later one and must not make the inner one a replay.
+    key = tmp_path / "hq.key"
+    key.write_text(KEY.hex() + "\n")
+    key.chmod(0o600)
+    hq = start_hq("--signing-key", str(key))
+    with SimRobot(11, hq.address, tunnel=True, signing=load_signing(key)) as robot:
+        for victim in (1, 2):
+            msg = robot.report_msg(robot.victim(victim, float(victim), 0.0))
+            robot.send(msg)
+            assert ack_for(robot, msg.report_seq).result == ACCEPTED
+    assert hq.stop() == 0
