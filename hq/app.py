@@ -24,6 +24,7 @@ import queue
 import sqlite3
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +66,8 @@ _DB_CHECK_PERIOD_S = 0.25  # how often to look for actions written by `rescue-hq
 _ACTION_FIRST_RETRY_S = 0.5
 _ACTION_MAX_RETRY_S = 4.0
 _READ_TIMEOUT_S = 0.2  # how long a reader may take to notice the stop
+_MAX_INBOX = 8192  # datagrams waiting for the main thread
+MAX_SOURCES = 256  # sources (link, address) with a decoder; a fleet, not the Internet
 _MAX_BATCH = 256  # datagrams decoded into one database transaction
 _STORE_RETRY_S = 1.0  # how often reports held from a failed write are tried again
 _STORE_NOTICE_PERIOD_S = 30.0  # repeat the "cannot store" ERROR and STATUSTEXT this often
@@ -84,6 +87,7 @@ class HqOptions:
     live_table: bool = False
     duration_s: float | None = None
     origin: GlobalOrigin | None = None
+    source_idle_s: float = 120.0  # a source (link, address) silent this long is forgotten
 
 
 @dataclass(frozen=True)
@@ -111,6 +115,8 @@ class Counters:
     actions_rejected: int = 0
     foreign_tunnels: int = 0
     exports: int = 0
+    inbox_dropped: int = 0  # datagrams dropped because the main thread was behind
+    sources_forgotten: int = 0  # decoders dropped: silent too long, or too many sources
 
 
 class HqApp:
@@ -130,8 +136,10 @@ class HqApp:
         self._signing = _hq_signing(options.signing)
         self._encoder = Codec(options.sysid, HQ_COMPONENT_ID, self._signing)
         self._m = self._encoder.module
-        self._decoders: dict[tuple[int, Peer], Codec] = {}
-        self._inbox: queue.Queue[tuple[int, Peer, bytes]] = queue.Queue()
+        # Per source (link, address): its decoder and when it was last heard (monotonic),
+        # least recently heard first. Bounded by MAX_SOURCES, expired after source_idle_s.
+        self._decoders: OrderedDict[tuple[int, Peer], tuple[Codec, float]] = OrderedDict()
+        self._inbox: queue.Queue[tuple[int, Peer, bytes]] = queue.Queue(_MAX_INBOX)
         self._routes: dict[int, Route] = {}
         self._outbox = Outbox(
             self._send_action, initial_s=_ACTION_FIRST_RETRY_S, max_s=_ACTION_MAX_RETRY_S
@@ -175,6 +183,7 @@ class HqApp:
                 if now >= next_db_check:
                     self._refresh_actions()
                     next_db_check = now + _DB_CHECK_PERIOD_S
+                self._forget_silent_sources(now)
                 if self._unstored and now >= next_store_retry:
                     self._store_and_ack([])  # reports held from a failed write
                     next_store_retry = now + _STORE_RETRY_S
@@ -204,7 +213,10 @@ class HqApp:
                 log.error("%s: %s; this link stops receiving", endpoint.name, exc)
                 return
             if data:
-                self._inbox.put((index, peer, data))
+                try:
+                    self._inbox.put_nowait((index, peer, data))
+                except queue.Full:  # a flood: dropped like a full UDP buffer; robots resend
+                    self.counters.inbox_dropped += 1
 
     def _collect(self, timeout_s: float) -> list[tuple[int, Peer, bytes]]:
         try:
@@ -221,13 +233,32 @@ class HqApp:
 
     # -- receiving -------------------------------------------------------------
 
+    @property
+    def tracked_sources(self) -> int:
+        """How many sources (link, address) the HQ keeps a decoder for."""
+        return len(self._decoders)
+
     def _decoder(self, index: int, peer: Peer) -> Codec:
         key = (index, peer)
-        codec = self._decoders.get(key)
-        if codec is None:
+        now = time.monotonic()
+        entry = self._decoders.pop(key, None)
+        if entry is None:
+            while len(self._decoders) >= MAX_SOURCES:
+                self._decoders.popitem(last=False)  # the longest silent
+                self.counters.sources_forgotten += 1
             codec = Codec(self.options.sysid, HQ_COMPONENT_ID, self._signing, self._m)
-            self._decoders[key] = codec
+        else:
+            codec = entry[0]
+        self._decoders[key] = (codec, now)
         return codec
+
+    def _forget_silent_sources(self, now: float) -> None:
+        while self._decoders:
+            key, (_codec, heard) = next(iter(self._decoders.items()))
+            if now - heard <= self.options.source_idle_s:
+                return
+            del self._decoders[key]
+            self.counters.sources_forgotten += 1
 
     def _process(self, batch: list[tuple[int, Peer, bytes]]) -> None:
         reports: list[tuple[IncomingReport, Any, Route]] = []

@@ -50,6 +50,7 @@ _SIGNATURE_LEN = 13
 _IFLAG_SIGNED = 0x01
 _START = re.compile(b"[\xfd\xfe]")
 _MAX_SEQ_GAP = 8  # frames of a sender that may be lost between two we see
+MAX_SENDERS = 1024  # (system, component) pairs whose last sequence number is kept
 
 
 @dataclass
@@ -104,6 +105,11 @@ class Codec:
             raise ValueError(f"src_system must be in 1..255, got {value}")
         with self._encode_lock:
             self.mav.srcSystem = value
+
+    @property
+    def tracked_senders(self) -> int:
+        """How many senders' last sequence numbers are kept (at most MAX_SENDERS)."""
+        return len(self._last_seq)
 
     @property
     def src_component(self) -> int:
@@ -223,7 +229,10 @@ class Codec:
             self.counters.bad_frames += 1
             log.debug("decoder failed on message id %d: %r", msg_id, exc)
             return None, 0
+        self._last_seq.pop(sender, None)  # most recently heard last
         self._last_seq[sender] = seq
+        if len(self._last_seq) > MAX_SENDERS:
+            del self._last_seq[next(iter(self._last_seq))]  # the longest silent sender
         return msg, length
 
 
