@@ -669,5 +669,5 @@ def _report_line(item: IncomingReport, result: StoreResult) -> str:
     note = " (older than what the HQ holds; kept in the log)" if result is StoreResult.STALE else ""
     return (
         f"report robot {r.robot_sysid} victim {r.victim_id} seq {item.report_seq}: "
-        f"{r.urgency.name} {r.visibility_pct:.0f}% {r.state.name} {where} ±{r.sigma_m:.1f} m{note}"
+        f"{r.urgency.name} {r.visibility_pct:.0f}% visible {r.state.name} {where} ±{r.sigma_m:.1f} m{note}"
     )

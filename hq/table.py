@@ -1,7 +1,8 @@
 """The live terminal table: every victim and robot, readable at a glance.
 
-Most urgent first; urgency in colour (CRITICAL red, MEDIUM orange, LIGHT green)
-when the output is a terminal, plain text otherwise. Rescued and false-alarm
+Most urgent first. VISIBLE is the share of the body a robot sees, in percent (of
+several robots, the lowest: the most buried view); urgency in colour (CRITICAL red,
+MEDIUM orange, LIGHT green) when the output is a terminal, plain text otherwise. Rescued and false-alarm
 victims are dimmed. ``ACK`` counts operator actions still waiting for the robot's
 acknowledgement. Rendering is pure (text in, text out); the app decides when to
 redraw (at most 2 Hz).
@@ -66,7 +67,7 @@ def _paint(text: str, code: str, colour: bool) -> str:
 
 def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) -> list[str]:
     head = (
-        f"{'ID':>4} {'URGENCY':<9}{'VIS%':>5} {'STATE':<17} {'ROBOT:VICTIM':<16}"
+        f"{'ID':>4} {'URGENCY':<9}{'VISIBLE':>7} {'STATE':<17} {'ROBOT:VICTIM':<16}"
         f"{'POSITION':<24}{'±m':>5} {'SEEN':>7} {'ACK':>3}"
     )
     rows = [_paint(head, _BOLD, colour)]
@@ -76,7 +77,7 @@ def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) ->
         done = v.state in (TrackState.RESCUED, TrackState.FALSE_ALARM)
         state = v.state.name + ("?" if v.actions_pending else "")
         line_rest = (
-            f"{v.visibility_pct:>5.0f} {state:<17} {srcs:<16}{_position(v):<24}"
+            f"{f'{v.visibility_pct:.0f}%':>7} {state:<17} {srcs:<16}{_position(v):<24}"
             f"{v.sigma_m:>5.1f} {age(now_unix_s - v.last_seen_unix_s):>7} "
             f"{v.actions_pending or '':>3}"
         )

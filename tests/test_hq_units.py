@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -226,3 +227,13 @@ def test_newer_report_wins_by_sequence_even_when_the_robot_clock_stepped_back(
         assert (src.report_seq, src.report.urgency) == (12, Urgency.CRITICAL)
         late = incoming(report(1, 1, 9.0, 0.0), 10, t_usec=t + 10_000_000)  # older seq, later clock
         assert reg.store_reports([late]) == [StoreResult.STALE]
+
+
+def test_table_says_what_the_visibility_number_is(tmp_path: Path) -> None:
+    with Registry(tmp_path / "r.sqlite") as reg:
+        r = report(1, 1, 0.0, 0.0, urgency=Urgency.LIGHT)
+        reg.store_reports([incoming(replace(r, visibility_pct=48.0), 1)])
+        victims = hq_victims(reg)
+    text = table.render(table.Header(245, ["udp"], 1, False), victims, [], 0.0, colour=False)
+    head, row = text.splitlines()[2:4]
+    assert "VISIBLE" in head and "LIGHT" in row and "48%" in row
