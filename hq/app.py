@@ -24,7 +24,6 @@ import queue
 import sqlite3
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,18 +31,18 @@ from typing import Any, TextIO
 
 from fusion.types import GlobalOrigin
 from hq import export, table, wire
-from hq.registry import (
+from hq.ratelog import RateLimitedLog
+from hq.records import (
     ACK_RESULT_ACCEPTED,
     ACK_RESULT_DUPLICATE,
     ACK_RESULT_REJECTED,
     IncomingReport,
-    Registry,
-    RegistryBusy,
-    RegistryError,
-    RegistryFull,
     StoreResult,
 )
+from hq.registry import Registry, RegistryBusy, RegistryError, RegistryFull
+from hq.sources import SourceTable
 from hq.transport import Endpoint, Peer
+from hq.unstored import UnstoredReports
 from hq.view import hq_victims
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import (
@@ -136,9 +135,11 @@ class HqApp:
         self._signing = _hq_signing(options.signing)
         self._encoder = Codec(options.sysid, HQ_COMPONENT_ID, self._signing)
         self._m = self._encoder.module
-        # Per source (link, address): its decoder and when it was last heard (monotonic),
-        # least recently heard first. Bounded by MAX_SOURCES, expired after source_idle_s.
-        self._decoders: OrderedDict[tuple[int, Peer], tuple[Codec, float]] = OrderedDict()
+        self._sources = SourceTable(
+            lambda: Codec(options.sysid, HQ_COMPONENT_ID, self._signing, self._m),
+            MAX_SOURCES,
+            options.source_idle_s,
+        )
         self._inbox: queue.Queue[tuple[int, Peer, bytes]] = queue.Queue(_MAX_INBOX)
         self._routes: dict[int, Route] = {}
         self._outbox = Outbox(
@@ -183,7 +184,8 @@ class HqApp:
                 if now >= next_db_check:
                     self._refresh_actions()
                     next_db_check = now + _DB_CHECK_PERIOD_S
-                self._forget_silent_sources(now)
+                self._sources.forget_silent(now)
+                self.counters.sources_forgotten = self._sources.forgotten
                 if self._unstored and now >= next_store_retry:
                     self._store_and_ack([])  # reports held from a failed write
                     next_store_retry = now + _STORE_RETRY_S
@@ -236,29 +238,12 @@ class HqApp:
     @property
     def tracked_sources(self) -> int:
         """How many sources (link, address) the HQ keeps a decoder for."""
-        return len(self._decoders)
+        return len(self._sources)
 
     def _decoder(self, index: int, peer: Peer) -> Codec:
-        key = (index, peer)
-        now = time.monotonic()
-        entry = self._decoders.pop(key, None)
-        if entry is None:
-            while len(self._decoders) >= MAX_SOURCES:
-                self._decoders.popitem(last=False)  # the longest silent
-                self.counters.sources_forgotten += 1
-            codec = Codec(self.options.sysid, HQ_COMPONENT_ID, self._signing, self._m)
-        else:
-            codec = entry[0]
-        self._decoders[key] = (codec, now)
+        codec = self._sources.decoder((index, peer), time.monotonic())
+        self.counters.sources_forgotten = self._sources.forgotten
         return codec
-
-    def _forget_silent_sources(self, now: float) -> None:
-        while self._decoders:
-            key, (_codec, heard) = next(iter(self._decoders.items()))
-            if now - heard <= self.options.source_idle_s:
-                return
-            del self._decoders[key]
-            self.counters.sources_forgotten += 1
 
     def _process(self, batch: list[tuple[int, Peer, bytes]]) -> None:
         reports: list[tuple[IncomingReport, Any, Route]] = []
@@ -588,60 +573,6 @@ class HqApp:
             log.error("export to %s failed: %s", self.options.export_dir, exc)
             return
         self.counters.exports += 1
-
-
-class UnstoredReports:
-    """Reports received but not stored yet (the registry could not be written), in order.
-
-    One entry per report (robot, report_seq, victim, report time), with the route
-    of its latest copy. None of them was acknowledged: past ``limit`` the oldest is
-    dropped and counted, and the robot's resend brings it back.
-    """
-
-    def __init__(self, limit: int) -> None:
-        self._limit = limit
-        self._items: dict[tuple[int, int, int, int], tuple[IncomingReport, Any, Route]] = {}
-        self.dropped = 0
-
-    def add(self, reports: list[tuple[IncomingReport, Any, Route]]) -> None:
-        for entry in reports:
-            item = entry[0]
-            key = (item.report.robot_sysid, item.report_seq, item.report.victim_id,
-                   item.report_time_usec)  # fmt: skip
-            self._items.pop(key, None)
-            self._items[key] = entry
-        while len(self._items) > self._limit:
-            del self._items[next(iter(self._items))]
-            self.dropped += 1
-
-    def entries(self) -> list[tuple[IncomingReport, Any, Route]]:
-        return list(self._items.values())
-
-    def clear(self) -> None:
-        self._items.clear()
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-
-class RateLimitedLog:
-    """WARNING lines per key, at most one per period; the lines left out are counted in the next."""
-
-    def __init__(self, period_s: float) -> None:
-        self._period_s = period_s
-        self._last: dict[tuple[str, int], tuple[float, int]] = {}  # key -> (said at, left out)
-
-    def say(self, key: tuple[str, int], text: str) -> None:
-        now = time.monotonic()
-        said, left_out = self._last.get(key, (-self._period_s, 0))
-        if now - said < self._period_s:
-            self._last[key] = (said, left_out + 1)
-            return
-        more = f" ({left_out} more like it left out)" if left_out else ""
-        log.warning("%s%s", text, more)
-        if len(self._last) >= _MAX_LOG_KEYS:
-            self._last.clear()
-        self._last[key] = (now, 0)
 
 
 def _hq_signing(signing: Signing | None) -> Signing | None:

@@ -26,7 +26,8 @@ from types import FrameType
 from fusion.types import GlobalOrigin
 from hq import epoch, export, table
 from hq.app import HqApp, HqOptions
-from hq.registry import OperatorAction, Registry, RegistryCorrupt, RegistryError
+from hq.records import OperatorAction
+from hq.registry import Registry, RegistryCorrupt, RegistryError
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
 from hq.view import hq_victims
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError

@@ -1,5 +1,9 @@
 """The HQ's typed records and the one place their values are checked.
 
+Records: a report as it arrives (IncomingReport) and as a victim's source holds it
+(Source), an operator action and the robot's answer (Action), a robot (Robot,
+RobotStatus), and what storing a report did (StoreResult).
+
 Everything the HQ keeps about a victim or a robot passes ``check_report``,
 ``check_origin`` or ``RobotStatus`` twice: once when it arrives on the radio
 (hq.wire turns a MAVLink message into these values) and once when it is read back
@@ -25,6 +29,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import asdict, dataclass, fields
+from enum import Enum
 from typing import Any
 
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
@@ -36,6 +41,74 @@ MIN_VARIANCE_M2 = 1e-6  # 1 mm sigma
 MAX_VARIANCE_M2 = 1e10  # 100 km sigma
 MIN_ALT_M = -1_000.0  # below the Dead Sea shore, above any mine floor
 MAX_ALT_M = 10_000.0
+
+
+ACK_RESULT_ACCEPTED = 0  # RESCUE_ACK_RESULT
+ACK_RESULT_DUPLICATE = 1
+ACK_RESULT_REJECTED = 2
+
+
+class StoreResult(Enum):
+    ACCEPTED = "accepted"  # new, stored, and the newest state of its victim
+    STALE = "stale"  # new and stored, but older than what the victim already holds
+    DUPLICATE = "duplicate"  # stored before
+
+
+class OperatorAction(Enum):
+    """Values match RESCUE_OPERATOR_ACTION_TYPE."""
+
+    RESCUED = 1
+    FALSE_ALARM = 2
+
+
+@dataclass(frozen=True)
+class IncomingReport:
+    report: VictimReport
+    report_seq: int
+    report_time_usec: int
+    merged_into_id: int
+    src_compid: int
+    received_unix_s: float
+
+
+@dataclass(frozen=True)
+class Action:
+    action_seq: int
+    robot_sysid: int
+    victim_id: int
+    action: OperatorAction
+    created_unix_s: float
+    sent_count: int
+    acked_unix_s: float | None
+    ack_result: int | None = None  # RESCUE_ACK_RESULT the robot answered with
+
+    @property
+    def rejected(self) -> bool:
+        """The robot answered, and did not apply it (REJECTED, or a result we do not know)."""
+        return self.ack_result is not None and self.ack_result not in (
+            ACK_RESULT_ACCEPTED,
+            ACK_RESULT_DUPLICATE,
+        )
+
+
+@dataclass(frozen=True)
+class Source:
+    hq_id: int
+    report: VictimReport
+    report_seq: int
+    merged_into_id: int
+    updated_unix_s: float
+
+
+@dataclass(frozen=True)
+class Robot:
+    sysid: int
+    compid: int
+    first_heard_unix_s: float
+    last_heard_unix_s: float
+    status: RobotStatus | None
+    status_unix_s: float | None
+    origin: GlobalOrigin | None
 
 
 class BadRecord(ValueError):

@@ -28,15 +28,25 @@ import logging
 import sqlite3
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass
-from enum import Enum
+from dataclasses import asdict
 from pathlib import Path
 
-from fusion.geodesy import ned_to_geodetic
-from fusion.types import GlobalOrigin, TrackState, VictimReport
+from fusion.types import GlobalOrigin, TrackState
 from hq import epoch, merge
-from hq.merge import Geo, Placed
-from hq.records import BadRecord, RobotStatus, check_origin, report_from_payload, report_payload
+from hq.merge import Origins, Placed, placed
+from hq.records import (
+    Action,
+    BadRecord,
+    IncomingReport,
+    OperatorAction,
+    Robot,
+    RobotStatus,
+    Source,
+    StoreResult,
+    check_origin,
+    report_from_payload,
+    report_payload,
+)
 
 log = logging.getLogger(__name__)
 
@@ -95,74 +105,6 @@ class RegistryCorrupt(RegistryError):
 
 class RegistryFull(RegistryError):
     """The disk is full; nothing of the write was stored."""
-
-
-ACK_RESULT_ACCEPTED = 0  # RESCUE_ACK_RESULT
-ACK_RESULT_DUPLICATE = 1
-ACK_RESULT_REJECTED = 2
-
-
-class StoreResult(Enum):
-    ACCEPTED = "accepted"  # new, stored, and the newest state of its victim
-    STALE = "stale"  # new and stored, but older than what the victim already holds
-    DUPLICATE = "duplicate"  # stored before
-
-
-class OperatorAction(Enum):
-    """Values match RESCUE_OPERATOR_ACTION_TYPE."""
-
-    RESCUED = 1
-    FALSE_ALARM = 2
-
-
-@dataclass(frozen=True)
-class IncomingReport:
-    report: VictimReport
-    report_seq: int
-    report_time_usec: int
-    merged_into_id: int
-    src_compid: int
-    received_unix_s: float
-
-
-@dataclass(frozen=True)
-class Action:
-    action_seq: int
-    robot_sysid: int
-    victim_id: int
-    action: OperatorAction
-    created_unix_s: float
-    sent_count: int
-    acked_unix_s: float | None
-    ack_result: int | None = None  # RESCUE_ACK_RESULT the robot answered with
-
-    @property
-    def rejected(self) -> bool:
-        """The robot answered, and did not apply it (REJECTED, or a result we do not know)."""
-        return self.ack_result is not None and self.ack_result not in (
-            ACK_RESULT_ACCEPTED,
-            ACK_RESULT_DUPLICATE,
-        )
-
-
-@dataclass(frozen=True)
-class Source:
-    hq_id: int
-    report: VictimReport
-    report_seq: int
-    merged_into_id: int
-    updated_unix_s: float
-
-
-@dataclass(frozen=True)
-class Robot:
-    sysid: int
-    compid: int
-    first_heard_unix_s: float
-    last_heard_unix_s: float
-    status: RobotStatus | None
-    status_unix_s: float | None
-    origin: GlobalOrigin | None
 
 
 class Registry:
@@ -634,38 +576,6 @@ class Registry:
     def origins(self) -> Origins:
         per_robot = {r.sysid: r.origin for r in self.robots() if r.origin is not None}
         return Origins(per_robot, self.default_origin())
-
-
-@dataclass(frozen=True)
-class Origins:
-    """EKF origins the HQ knows: per robot (GPS_GLOBAL_ORIGIN) and the operator's default."""
-
-    per_robot: dict[int, GlobalOrigin]
-    default: GlobalOrigin | None
-
-    def for_robot(self, sysid: int) -> GlobalOrigin | None:
-        return self.per_robot.get(sysid, self.default)
-
-
-def geo_of(report: VictimReport, origins: Origins) -> Geo | None:
-    """A report's (lat, lon, alt): as reported, else from its robot's EKF origin, else None."""
-    if report.lat_deg is not None and report.lon_deg is not None and report.alt_m is not None:
-        return (report.lat_deg, report.lon_deg, report.alt_m)
-    origin = origins.for_robot(report.robot_sysid)
-    if origin is None:
-        return None
-    return ned_to_geodetic(origin, report.north_m, report.east_m, report.down_m)
-
-
-def placed(report: VictimReport, origins: Origins) -> Placed:
-    return Placed(
-        report.robot_sysid,
-        report.victim_id,
-        report.north_m,
-        report.east_m,
-        report.cov_ne_m2,
-        geo_of(report, origins),
-    )
 
 
 def _describe(exc: sqlite3.DatabaseError) -> str:

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from fusion.types import TrackState, Urgency
-from hq.registry import Robot
+from hq.records import Robot
 from hq.view import HqVictim
 
 _RESET = "\x1b[0m"

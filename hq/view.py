@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 from fusion.types import Cov2, TrackState, Urgency
 from hq import merge
-from hq.registry import Action, OperatorAction, Origins, Registry, Source, placed
+from hq.merge import Origins, placed
+from hq.records import Action, OperatorAction, Source
+from hq.registry import Registry
 
 _STATE_RANK = {
     TrackState.RESCUED: 5,

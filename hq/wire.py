@@ -17,8 +17,7 @@ from typing import Any
 
 from fusion.types import GlobalOrigin, VictimReport
 from hq import records
-from hq.records import RobotStatus
-from hq.registry import IncomingReport
+from hq.records import IncomingReport, RobotStatus
 from mavlink_io import convert, tunnel
 from mavlink_io.codec import Codec
 

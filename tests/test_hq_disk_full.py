@@ -18,7 +18,8 @@ import pytest
 from hqproc import ACCEPTED, ACK_TIMEOUT_S, HqProcess, ack_for, acks_waiting, hq_starter
 
 from fusion.types import TrackState, Urgency, VictimReport
-from hq.registry import IncomingReport, Registry, RegistryFull, StoreResult
+from hq.records import IncomingReport, StoreResult
+from hq.registry import Registry, RegistryFull
 from hq.simrobot import SimRobot
 
 _FS_BYTES = 4 * 1024 * 1024

@@ -15,13 +15,8 @@ from fusion.geodesy import ned_to_geodetic
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
 from hq import export, merge, table
 from hq.merge import Placed
-from hq.registry import (
-    IncomingReport,
-    OperatorAction,
-    Registry,
-    RegistryError,
-    StoreResult,
-)
+from hq.records import IncomingReport, OperatorAction, StoreResult
+from hq.registry import Registry, RegistryError
 from hq.view import hq_victims
 
 ORIGIN = GlobalOrigin(47.397742, 8.545594, 488.0)
