@@ -24,6 +24,7 @@ from hqproc import (
     DUPLICATE,
     REJECTED,
     REPO,
+    HqProcess,  # noqa: F401  (tests/test_companion_with_hq.py imports it here)
     ack_for,
     acks_waiting,
     hq_starter,
