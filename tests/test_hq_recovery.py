@@ -35,6 +35,12 @@ def _report_victims(hq: HqProcess, sysid: int, count: int) -> None:
             assert ack_for(robot, msg.report_seq).result == ACCEPTED
 
 
+def _moved_aside(directory: Path) -> list[Path]:
+    """Registries moved aside (``.corrupt-<stamp>``, ``-N`` when two share a second)."""
+    found = directory.glob("hq.sqlite.corrupt-*")
+    return sorted(p for p in found if not p.name.endswith(("-wal", "-shm")))
+
+
 def _hq_ids(db: Path) -> list[int]:
     with Registry(db) as reg:
         return sorted(v.hq_id for v in hq_victims(reg))
@@ -66,7 +72,7 @@ def test_damaged_registry_is_moved_aside_and_ids_are_not_reused(
     said = [line for line in hq2.stderr if "moved it to" in line]
     assert len(said) == 1, hq2.stderr
     assert "Traceback" not in "".join(hq2.stderr)
-    (aside,) = tmp_path.glob("hq.sqlite.corrupt-*Z")
+    (aside,) = _moved_aside(tmp_path)
     assert aside.name in said[0] and "new ID epoch 2" in said[0]
     (new_id,) = _hq_ids(db)
     assert new_id > max(old_ids)
@@ -77,7 +83,7 @@ def test_damaged_registry_is_moved_aside_and_ids_are_not_reused(
     _report_victims(hq3, 3, 1)
     assert hq3.stop() == 0
     assert _hq_ids(db)[0] > new_id
-    assert len(list(tmp_path.glob("hq.sqlite.corrupt-*Z"))) == 2
+    assert len(_moved_aside(tmp_path)) == 2  # the first one is still there
 
 
 def test_read_only_tools_refuse_a_damaged_registry_without_moving_it(tmp_path: Path) -> None:
@@ -91,3 +97,19 @@ def test_read_only_tools_refuse_a_damaged_registry_without_moving_it(tmp_path: P
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and str(db) in lines[0] and "Traceback" not in result.stderr
     assert db.exists() and not list(tmp_path.glob("*.corrupt-*"))
+
+
+def test_two_moves_in_one_second_keep_both_files(tmp_path: Path) -> None:
+    from hq import epoch
+
+    db = tmp_path / "hq.sqlite"
+    names = []
+    for content in (b"first", b"second"):  # well within one second
+        db.write_bytes(content)
+        (tmp_path / "hq.sqlite-wal").write_bytes(content + b" wal")
+        names.append(epoch.move_aside(db))
+    assert names[1].name == names[0].name + "-2"
+    assert [p.read_bytes() for p in names] == [b"first", b"second"]
+    assert [p.name for p in _moved_aside(tmp_path)] == [n.name for n in names]
+    assert (tmp_path / (names[1].name + "-wal")).read_bytes() == b"second wal"
+    assert not db.exists()
