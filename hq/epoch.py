@@ -5,8 +5,11 @@ never name two people, even when the registry file is lost. Each registry create
 at a path gets the next *epoch* E of that path, and its HQ victim IDs start at
 ``(E - 1) * IDS_PER_EPOCH + 1``: epoch 1 counts 1, 2, 3..., epoch 2 counts from
 1000001. The highest epoch given out is kept beside the registry in
-``<registry>.epoch`` (one number, written atomically), which survives the registry
-itself being emptied or corrupted. Deleting both starts again at epoch 1.
+``<registry>.epoch`` (written atomically), which survives the registry itself
+being emptied or corrupted. Deleting both starts again at epoch 1. The same file
+keeps the highest operator action_seq given out, so that a new registry at the
+path numbers its actions above every earlier one (a robot drops a number it has
+seen from this HQ as a duplicate).
 
 ``move_aside`` renames a damaged registry (and its -wal/-shm files) to
 ``<registry>.corrupt-<UTC time stamp>`` so that nothing is deleted and a person
@@ -18,6 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -39,38 +43,64 @@ def first_id(epoch: int) -> int:
     return (epoch - 1) * IDS_PER_EPOCH + 1
 
 
-def last_epoch(db: Path) -> int:
-    """The highest epoch given out at this path (0: none, or no readable record)."""
+@dataclass(frozen=True)
+class Record:
+    """What ``<registry>.epoch`` holds: the highest epoch and action_seq given out."""
+
+    epoch: int = 0
+    action_seq: int = 0
+
+
+def read(db: Path) -> Record:
+    """The record beside ``db`` (zeros when there is none).
+
+    An unreadable record is said once and replaced by a safe guess: the epoch after
+    the registries moved aside at this path, and no action_seq (the clock floor of
+    hq.registry still applies).
+    """
     path = epoch_file(db)
     try:
-        text = path.read_text(encoding="ascii").strip()
+        text = path.read_text(encoding="ascii")
     except FileNotFoundError:
-        return 0
+        return Record()
     except (OSError, UnicodeDecodeError) as exc:
-        log.error("epoch file %s unreadable (%s); counting the moved-aside registries", path, exc)
-        return _moved_aside_count(db) + 1
-    if not text.isdigit():
-        log.error("epoch file %s holds %r, not a number; counting the moved-aside registries",
-                  path, text[:40])  # fmt: skip
-        return _moved_aside_count(db) + 1
-    return int(text)
+        return _guess(path, db, str(exc))
+    parts = text.split()
+    if not 1 <= len(parts) <= 2 or not all(part.isdigit() for part in parts):
+        return _guess(path, db, f"holds {text[:40]!r}, not one or two numbers")
+    return Record(int(parts[0]), int(parts[1]) if len(parts) == 2 else 0)
 
 
-def record(db: Path, epoch: int) -> None:
-    """Write ``epoch`` as the highest given out at this path (never lowers it)."""
-    if epoch <= last_epoch(db):
+def last_epoch(db: Path) -> int:
+    """The highest epoch given out at this path (0: none)."""
+    return read(db).epoch
+
+
+def record(db: Path, epoch: int = 0, action_seq: int = 0) -> None:
+    """Record ``epoch`` and ``action_seq`` as given out at this path (never lowers either).
+
+    Written to a temporary file, synced and renamed: the record is whole or old.
+    """
+    old = read(db)
+    new = Record(max(old.epoch, epoch), max(old.action_seq, action_seq))
+    if new == old:
         return
     path = epoch_file(db)
     staging = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     try:
         with staging.open("w", encoding="ascii") as f:
-            f.write(f"{epoch}\n")
+            f.write(f"{new.epoch} {new.action_seq}\n")
             f.flush()
             os.fsync(f.fileno())
         staging.replace(path)
     except OSError as exc:
         staging.unlink(missing_ok=True)
         raise EpochError(f"epoch file {path}: cannot write: {exc.strerror or exc}") from None
+
+
+def _guess(path: Path, db: Path, why: str) -> Record:
+    log.error("epoch file %s unusable (%s); counting the moved-aside registries", path, why)
+    return Record(_moved_aside_count(db) + 1, 0)
 
 
 def move_aside(db: Path) -> Path:

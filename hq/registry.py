@@ -54,7 +54,9 @@ SCHEMA_VERSION = 2  # 2: actions.ack_result
 _MIGRATIONS = {1: ("ALTER TABLE actions ADD COLUMN ack_result INTEGER",)}  # from version: SQL
 # action_seq never counts below the seconds since this instant (see _seed_action_seq).
 _ACTION_SEQ_EPOCH_UNIX_S = 1_735_689_600  # 2025-01-01T00:00:00Z
+_ACTION_SEQ_TICKS_PER_S = 4  # the clock floor counts quarter seconds: uint32 lasts until 2059
 _MAX_ACTION_SEQ = 0xFFFFFFFF  # RESCUE_OPERATOR_ACTION.action_seq is a uint32
+_ACTION_SEQ_HEADROOM = 1 << 24  # numbers left above the highest clock floor
 _BUSY_TIMEOUT_MS = 1500  # a concurrent `rescue-hq mark` holds the lock for milliseconds
 
 _SCHEMA = """
@@ -176,7 +178,7 @@ class Registry:
                 )
             row = db.execute("SELECT value FROM meta WHERE key='epoch'").fetchone()
             self.epoch = 1 if row is None else int(row[0])  # no epoch yet: an older registry
-            epoch.record(self.path, self.epoch)  # a lost epoch file is written again
+            epoch.record(self.path, epoch=self.epoch)  # a lost epoch file is written again
             db.execute("COMMIT")
         except epoch.EpochError as exc:
             self._rollback()
@@ -196,18 +198,22 @@ class Registry:
             "INSERT INTO sqlite_sequence (name, seq) VALUES ('hq_victims', ?)",
             (epoch.first_id(number) - 1,),
         )
-        epoch.record(self.path, number)
+        epoch.record(self.path, epoch=number)
 
     def _seed_action_seq(self) -> None:
-        """Make the next action_seq at least the seconds since 2025 on the HQ's clock.
+        """Make the next action_seq above every one given out before.
 
         A robot drops an action_seq it has seen from this HQ as a duplicate. Within
-        one registry AUTOINCREMENT never goes back; across registries (a new file, or
-        a corrupt one moved aside) the clock keeps numbers apart: an older registry
-        could only reach them with more than one action per second since it began.
+        one registry AUTOINCREMENT never goes back. At the same path, the epoch file
+        records the highest number given out (hq.epoch), which survives a lost or
+        corrupt registry. Across paths (another --db), the HQ's clock in quarter
+        seconds since 2025 keeps numbers apart, unless the other registry numbered
+        faster than four actions a second, or the clock went back.
         """
-        now_s = int(time.time()) - _ACTION_SEQ_EPOCH_UNIX_S
-        floor = max(0, min(now_s, _MAX_ACTION_SEQ // 2))  # a clock gone wild is ignored
+        ticks = int((time.time() - _ACTION_SEQ_EPOCH_UNIX_S) * _ACTION_SEQ_TICKS_PER_S)
+        # A clock gone wild is ignored beyond the headroom kept for counting on.
+        floor = max(0, min(ticks, _MAX_ACTION_SEQ - _ACTION_SEQ_HEADROOM))
+        floor = max(floor, epoch.read(self.path).action_seq)
         row = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name='actions'").fetchone()
         if row is None:
             self._db.execute(
@@ -455,6 +461,10 @@ class Registry:
             )
             if cur.lastrowid is None or cur.lastrowid > _MAX_ACTION_SEQ:
                 raise RegistryError(f"database {self.path}: action numbers exhausted")
+            try:  # on record before the action exists (this transaction commits)
+                epoch.record(self.path, action_seq=cur.lastrowid)
+            except epoch.EpochError as exc:
+                raise RegistryError(str(exc)) from None
         return int(cur.lastrowid)
 
     def note_action_sent(self, action_seq: int, now_unix_s: float) -> None:

@@ -105,3 +105,19 @@ def test_a_version_1_registry_is_upgraded_in_place(tmp_path: Path) -> None:
     with Registry(path) as reg:
         assert reg.actions() == []
         assert not reg.ack_action(1, 0.0, REJECTED)  # the column exists: no error
+
+
+def test_a_replaced_registry_numbers_actions_above_the_lost_one(tmp_path: Path) -> None:
+    from hq.records import IncomingReport, OperatorAction
+    from hq.simrobot import SimRobot as _Robot
+
+    with _Robot(4, ("127.0.0.1", 9)) as robot:  # only to build a valid report
+        report = robot.victim(1, 1.0, 1.0)
+    db = tmp_path / "hq.sqlite"
+    numbers = []
+    for _ in range(2):  # a burst of actions, then the registry is lost at once
+        with Registry(db) as reg:
+            reg.store_reports([IncomingReport(report, 1, 1, 0, 191, 0.0)])
+            numbers += [reg.add_action(4, 1, OperatorAction.RESCUED) for _ in range(5)]
+        db.unlink()
+    assert numbers == sorted(set(numbers)), numbers  # all distinct, increasing
