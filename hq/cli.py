@@ -24,9 +24,11 @@ from pathlib import Path
 from types import FrameType
 
 from fusion.types import GlobalOrigin
-from hq import export, table
+from hq import epoch, export, table
 from hq.app import HqApp, HqOptions
-from hq.registry import OperatorAction, Origins, Registry, RegistryError
+from hq.merge import Origins
+from hq.records import OperatorAction
+from hq.registry import Registry, RegistryCorrupt, RegistryError
 from hq.sbs import DEFAULT_ADDRESS, SbsServer
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
 from hq.view import build, hq_victims
@@ -158,15 +160,34 @@ def _list_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _open_registry(path: Path, *, must_exist: bool) -> Registry:
+def _open_registry(path: Path, *, must_exist: bool, recover: bool = False) -> Registry:
+    """The registry; with ``recover`` (run), a damaged file is moved aside, said once."""
     if must_exist and not path.exists():
         raise UsageError(f"database {path}: no such file")
     if path.is_dir():
         raise UsageError(f"database {path}: is a directory")
     try:
         return Registry(path)
+    except RegistryCorrupt as exc:
+        if not recover:
+            raise UsageError(str(exc)) from None
+        damage = exc
     except RegistryError as exc:
         raise UsageError(str(exc)) from None
+    try:
+        aside = epoch.move_aside(path)
+        registry = Registry(path)
+    except (OSError, RegistryError) as exc:
+        raise UsageError(f"{damage}; and it cannot be replaced: {exc}") from None
+    log.error(
+        "%s; moved it to %s and started a new registry in new ID epoch %d: "
+        "HQ victim IDs go on from %d, none of the old file's is reused",
+        damage,
+        aside.name,
+        registry.epoch,
+        epoch.first_id(registry.epoch),
+    )
+    return registry
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -175,10 +196,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         signing = load_signing(args.signing_key) if args.signing_key else None
     except (LinkSpecError, SigningError) as exc:
         raise UsageError(str(exc)) from None
-    registry = _open_registry(args.db, must_exist=False)
+    registry = _open_registry(args.db, must_exist=False, recover=True)
     try:
         if args.origin is not None:
-            registry.set_default_origin(args.origin)
+            try:
+                registry.set_default_origin(args.origin)
+            except RegistryError as exc:  # a full disk: the origin still serves this run
+                log.error("--origin not stored for export/list (used for this run): %s", exc)
         endpoints = _open_endpoints(specs)
         sbs: SbsServer | None = None
         try:
@@ -196,12 +220,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
             app.run(stop)
             c = app.counters
             log.info(
-                "stopped: %d reports, %d duplicates, %d rejected, %d acks, %d actions acked",
+                "stopped: %d reports, %d duplicates, %d rejected, %d acks, %d actions acked, "
+                "%d refused (bad values), %d refused (signature)",
                 c.reports,
                 c.duplicates,
                 c.rejected,
                 c.acks_sent,
                 c.actions_acked,
+                c.refused,
+                c.signature_refused,
             )
         finally:
             if sbs is not None:

@@ -6,6 +6,7 @@ import csv
 import json
 import sqlite3
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,13 +16,8 @@ from fusion.geodesy import ned_to_geodetic
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
 from hq import export, merge, table
 from hq.merge import Placed
-from hq.registry import (
-    IncomingReport,
-    OperatorAction,
-    Registry,
-    RegistryError,
-    StoreResult,
-)
+from hq.records import IncomingReport, OperatorAction, StoreResult
+from hq.registry import Registry, RegistryError
 from hq.view import hq_victims
 
 ORIGIN = GlobalOrigin(47.397742, 8.545594, 488.0)
@@ -149,7 +145,7 @@ def test_actions_need_a_known_victim_and_count_as_pending(tmp_path: Path) -> Non
         seq = reg.add_action(3, 4, OperatorAction.FALSE_ALARM)
         (v,) = hq_victims(reg)
         assert (v.state, v.actions_pending) == (TrackState.FALSE_ALARM, 1)
-        assert reg.ack_action(seq, 1.0) and not reg.ack_action(seq, 2.0)
+        assert reg.ack_action(seq, 1.0, 0) and not reg.ack_action(seq, 2.0, 0)
         assert hq_victims(reg)[0].actions_pending == 0
 
 
@@ -216,3 +212,32 @@ def test_table_colours_only_on_a_terminal(tmp_path: Path) -> None:
     assert "CRITICAL" in plain and "1:1" in plain and "2m05s" in plain
     coloured = table.render(header, victims, robots, now, colour=True)
     assert "\x1b[1;97;41mCRITICAL" in coloured  # red
+
+
+def test_newer_report_wins_by_sequence_even_when_the_robot_clock_stepped_back(
+    tmp_path: Path,
+) -> None:
+    # The robot's clock was corrected an hour back between two reports: report_seq,
+    # not the wall clock, says which is newer.
+    with Registry(tmp_path / "r.sqlite") as reg:
+        t = 1_700_000_000_000_000
+        first = incoming(report(1, 1, 0.0, 0.0, urgency=Urgency.LIGHT), 11, t_usec=t)
+        after_step = incoming(
+            report(1, 1, 0.2, 0.0, urgency=Urgency.CRITICAL), 12, t_usec=t - 3_600_000_000
+        )
+        assert reg.store_reports([first]) == [StoreResult.ACCEPTED]
+        assert reg.store_reports([after_step]) == [StoreResult.ACCEPTED]
+        (src,) = reg.sources()
+        assert (src.report_seq, src.report.urgency) == (12, Urgency.CRITICAL)
+        late = incoming(report(1, 1, 9.0, 0.0), 10, t_usec=t + 10_000_000)  # older seq, later clock
+        assert reg.store_reports([late]) == [StoreResult.STALE]
+
+
+def test_table_says_what_the_visibility_number_is(tmp_path: Path) -> None:
+    with Registry(tmp_path / "r.sqlite") as reg:
+        r = report(1, 1, 0.0, 0.0, urgency=Urgency.LIGHT)
+        reg.store_reports([incoming(replace(r, visibility_pct=48.0), 1)])
+        victims = hq_victims(reg)
+    text = table.render(table.Header(245, ["udp"], 1, False), victims, [], 0.0, colour=False)
+    head, row = text.splitlines()[2:4]
+    assert "VISIBLE" in head and "LIGHT" in row and "48%" in row
