@@ -24,6 +24,9 @@ $(STAMP): pyproject.toml $(SYSTAMP)
 	# The person models (MediaPipe, Apache-2.0) from the npm registry, checked by sha256,
 	# into .venv/share/rescue-companion/models; nothing is downloaded at run time.
 	$(BIN)/rescue-companion models fetch
+	# The console's map library (Leaflet, BSD-2-Clause) from the npm registry, checked by
+	# sha512 and sha256, into .venv/share/rescue-companion/web; never fetched at run time.
+	$(BIN)/rescue-hq assets fetch
 	@touch $@
 
 demo: $(STAMP)
@@ -36,7 +39,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 typecheck: $(STAMP)
-	$(BIN)/mypy companion mavlink_io fusion scenarios hq
+	$(BIN)/mypy companion mavlink_io fusion scenarios hq npmfetch
 
 pytest: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -38,6 +38,7 @@ from hq.registry import (
 )
 from hq.transport import Endpoint, Peer
 from hq.view import hq_victims
+from hq.web.state import LiveRobots
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import (
     RESCUE_MESSAGE_IDS,
@@ -73,6 +74,7 @@ class HqOptions:
     live_table: bool = False
     duration_s: float | None = None
     origin: GlobalOrigin | None = None
+    live: LiveRobots | None = None  # for the console: who was heard, where robots are
 
 
 @dataclass(frozen=True)
@@ -221,6 +223,8 @@ class HqApp:
                         continue
                     route = Route(index, peer, True, route.sysid, route.compid)
                     msg = inner
+                if self.options.live is not None:
+                    self.options.live.heard(msg.get_srcSystem(), time.time())
                 self._dispatch(msg, route, reports)
         if reports:
             self._store_and_ack(reports)
@@ -239,6 +243,9 @@ class HqApp:
             self._on_ack(msg)
         elif msg_id == self._m.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
             self._on_origin(msg)
+        elif msg_id == self._m.MAVLINK_MSG_ID_LOCAL_POSITION_NED and self.options.live is not None:
+            # The robot's autopilot, heard through the same radio/router as its reports.
+            self.options.live.position(msg.get_srcSystem(), msg.x, msg.y, time.time())
 
     def _on_report(self, msg: Any, route: Route, reports: list[Any]) -> None:
         try:

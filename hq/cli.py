@@ -2,10 +2,12 @@
 
     rescue-hq [run] [--listen URL ...] [--db PATH] [--sysid N] [--export-dir DIR]
                     [--signing-key FILE] [--origin LAT,LON,ALT] [--no-table]
-                    [--duration-s T] [-v]
+                    [--duration-s T] [--web HOST:PORT | --no-web]
+                    [--web-token-file FILE] [--link-timeout-s T] [-v]
     rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID) (--rescued | --false-alarm)
     rescue-hq export --db PATH --out DIR [--origin LAT,LON,ALT]
     rescue-hq list   --db PATH
+    rescue-hq assets fetch|verify
 
 Exit status: 0 ok; 1 runtime failure (a link cannot be opened, an export cannot
 be written); 2 bad usage, configuration or database (a clear one-line message
@@ -22,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from fusion.types import GlobalOrigin
 from hq import export, table
@@ -29,9 +32,13 @@ from hq.app import HqApp, HqOptions
 from hq.registry import OperatorAction, Registry, RegistryError
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
 from hq.view import hq_victims
+from hq.web.state import LiveRobots
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError
 from mavlink_io.linkspec import LinkSpec, parse_link
 from mavlink_io.signing import load_signing
+
+if TYPE_CHECKING:
+    from hq.web.server import Console
 
 log = logging.getLogger("hq")
 
@@ -40,7 +47,8 @@ EXIT_RUNTIME = 1
 EXIT_USAGE = 2
 DEFAULT_LISTEN = "udpin:0.0.0.0:14600"
 DEFAULT_DB = "rescue-hq.sqlite"
-_SUBCOMMANDS = ("run", "mark", "export", "list")
+DEFAULT_WEB = "127.0.0.1:8080"
+_SUBCOMMANDS = ("run", "mark", "export", "list", "assets")
 
 
 class UsageError(Exception):
@@ -77,6 +85,18 @@ def _duration(text: str) -> float:
     return value
 
 
+def _web_address(text: str) -> tuple[str, int]:
+    host, sep, port_text = text.rpartition(":")
+    host = host.strip("[]")
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not sep or not host or not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT, e.g. {DEFAULT_WEB}")
+    return host, port
+
+
 def _run_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rescue-hq",
@@ -101,7 +121,40 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-table", action="store_true", help="plain log lines, no live table")
     p.add_argument("--duration-s", type=_duration, help="run this long, then exit cleanly")
+    web = p.add_mutually_exclusive_group()
+    web.add_argument(
+        "--web",
+        type=_web_address,
+        default=_web_address(DEFAULT_WEB),
+        metavar="HOST:PORT",
+        help=f"the browser console's address (default {DEFAULT_WEB}; port 0 picks one); "
+        "an address other than loopback needs --web-token-file",
+    )
+    web.add_argument("--no-web", action="store_true", help="no browser console")
+    p.add_argument(
+        "--web-token-file",
+        type=Path,
+        help="file holding the console's token (one line, 12+ characters); "
+        "every page and request must then give it",
+    )
+    p.add_argument(
+        "--link-timeout-s",
+        type=_duration,
+        default=5.0,
+        help="the console shows a robot's link as lost after this long unheard (default 5)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
+    return p
+
+
+def _assets_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rescue-hq assets",
+        description="The console's map library (Leaflet) from the npm registry, checked by "
+        "sha512/sha256 (make runs `fetch` on set-up; nothing is fetched at run time).",
+    )
+    p.add_argument("action", choices=("fetch", "verify"))
+    p.add_argument("--dir", type=Path, help="asset folder (default: in the installation)")
     return p
 
 
@@ -146,18 +199,50 @@ def _open_registry(path: Path, *, must_exist: bool) -> Registry:
         raise UsageError(str(exc)) from None
 
 
+def _read_token(path: Path) -> str:
+    try:
+        token = path.read_text(encoding="utf-8").strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"console token file {path}: cannot read: {exc}") from None
+    if not token or "\n" in token:
+        raise UsageError(f"console token file {path}: expected one line with the token")
+    return token
+
+
+def _console(args: argparse.Namespace, live: LiveRobots) -> Console | None:
+    if args.no_web:
+        return None
+    # Imported here: the web stack loads only when the console is on.
+    from hq.web.access import AccessConfigError
+    from hq.web.server import Console, ConsoleOptions
+
+    host, port = args.web
+    token = _read_token(args.web_token_file) if args.web_token_file else None
+    options = ConsoleOptions(host, port, token, args.link_timeout_s)
+    try:
+        return Console(args.db, options, live)
+    except AccessConfigError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     try:
         specs = [parse_link(url) for url in (args.listen or [DEFAULT_LISTEN])]
         signing = load_signing(args.signing_key) if args.signing_key else None
     except (LinkSpecError, SigningError) as exc:
         raise UsageError(str(exc)) from None
+    live = LiveRobots()
+    stop = threading.Event()
+    _install_signal_handlers(stop)  # before anything is printed: a stop then is clean too
     registry = _open_registry(args.db, must_exist=False)
     try:
         if args.origin is not None:
             registry.set_default_origin(args.origin)
+        console = _console(args, live)
         endpoints = _open_endpoints(specs)
         try:
+            if console is not None:
+                _start_console(console)
             options = HqOptions(
                 sysid=args.sysid,
                 export_dir=args.export_dir,
@@ -165,10 +250,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 live_table=not args.no_table and sys.stdout.isatty(),
                 duration_s=args.duration_s,
                 origin=args.origin,
+                live=live,
             )
             app = HqApp(registry, endpoints, options, sys.stdout)
-            stop = threading.Event()
-            _install_signal_handlers(stop)
             app.run(stop)
             c = app.counters
             log.info(
@@ -180,11 +264,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 c.actions_acked,
             )
         finally:
+            if console is not None:
+                console.stop()
             for ep in endpoints:
                 ep.close()
     finally:
         registry.close()
     return EXIT_OK
+
+
+def _start_console(console: Console) -> None:
+    from hq.web.server import ConsoleError
+
+    try:
+        url = console.start()
+    except ConsoleError as exc:
+        raise LinkError(str(exc)) from None
+    note = " (token required)" if console.options.token else ""
+    print(f"rescue-hq: console on {url}{note}", flush=True)
+    for problem in console.asset_problems:
+        print(f"rescue-hq: console has no map: {problem}", flush=True)
 
 
 def _open_endpoints(specs: list[LinkSpec]) -> list[UdpHubLink | SingleLink]:
@@ -269,6 +368,24 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_assets(args: argparse.Namespace) -> int:
+    from hq.web import assets
+
+    if args.action == "verify":
+        problems = assets.verify(args.dir)
+        for line in problems:
+            print(line, file=sys.stderr)
+        return EXIT_USAGE if problems else EXIT_OK
+    try:
+        written = assets.fetch(args.dir)
+    except assets.FetchError as exc:
+        print(f"rescue-hq: {exc}", file=sys.stderr)
+        return EXIT_RUNTIME
+    folder = args.dir or assets.default_asset_dir()
+    print(f"console assets ok in {folder} ({len(written)} written, checked by sha256)")
+    return EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     command = argv[0] if argv and argv[0] in _SUBCOMMANDS else "run"
@@ -279,6 +396,7 @@ def main(argv: list[str] | None = None) -> int:
         "mark": (_mark_parser, _cmd_mark),
         "export": (_export_parser, _cmd_export),
         "list": (_list_parser, _cmd_list),
+        "assets": (_assets_parser, _cmd_assets),
     }
     make_parser, run = parsers[command]
     args = make_parser().parse_args(argv)  # exits 2 on bad usage
