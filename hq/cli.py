@@ -4,7 +4,8 @@
                     [--signing-key FILE] [--origin LAT,LON,ALT] [--no-table]
                     [--duration-s T] [--web HOST:PORT | --no-web]
                     [--web-token-file FILE] [--link-timeout-s T] [-v]
-    rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID) (--rescued | --false-alarm)
+    rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID)
+                     (--rescued | --false-alarm | --confirmed)
     rescue-hq export --db PATH --out DIR [--origin LAT,LON,ALT]
     rescue-hq list   --db PATH
     rescue-hq assets fetch|verify
@@ -125,10 +126,10 @@ def _run_parser() -> argparse.ArgumentParser:
     web.add_argument(
         "--web",
         type=_web_address,
-        default=_web_address(DEFAULT_WEB),
         metavar="HOST:PORT",
         help=f"the browser console's address (default {DEFAULT_WEB}; port 0 picks one); "
-        "an address other than loopback needs --web-token-file",
+        "an address other than loopback needs --web-token-file. When the default port "
+        "is taken, rescue-hq runs on without the console and says so",
     )
     web.add_argument("--no-web", action="store_true", help="no browser console")
     p.add_argument(
@@ -171,6 +172,7 @@ def _mark_parser() -> argparse.ArgumentParser:
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--rescued", action="store_true")
     what.add_argument("--false-alarm", action="store_true")
+    what.add_argument("--confirmed", action="store_true", help="a real person (reopens)")
     return p
 
 
@@ -216,7 +218,7 @@ def _console(args: argparse.Namespace, live: LiveRobots) -> Console | None:
     from hq.web.access import AccessConfigError
     from hq.web.server import Console, ConsoleOptions
 
-    host, port = args.web
+    host, port = args.web or _web_address(DEFAULT_WEB)
     token = _read_token(args.web_token_file) if args.web_token_file else None
     options = ConsoleOptions(host, port, token, args.link_timeout_s)
     try:
@@ -241,8 +243,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         console = _console(args, live)
         endpoints = _open_endpoints(specs)
         try:
-            if console is not None:
-                _start_console(console)
+            if console is not None and not _start_console(console, required=args.web is not None):
+                console = None
             options = HqOptions(
                 sysid=args.sysid,
                 export_dir=args.export_dir,
@@ -273,17 +275,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _start_console(console: Console) -> None:
+def _start_console(console: Console, *, required: bool) -> bool:
+    """Start the console; False when the default address is taken (the HQ runs on)."""
     from hq.web.server import ConsoleError
 
     try:
         url = console.start()
     except ConsoleError as exc:
-        raise LinkError(str(exc)) from None
+        if required:
+            raise LinkError(str(exc)) from None
+        print(
+            f"rescue-hq: {exc}; running without the console (give --web HOST:PORT)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return False
     note = " (token required)" if console.options.token else ""
     print(f"rescue-hq: console on {url}{note}", flush=True)
     for problem in console.asset_problems:
         print(f"rescue-hq: console has no map: {problem}", flush=True)
+    return True
 
 
 def _open_endpoints(specs: list[LinkSpec]) -> list[UdpHubLink | SingleLink]:
@@ -317,7 +328,13 @@ def _cmd_mark(args: argparse.Namespace) -> int:
     by_source = args.robot is not None or args.victim is not None
     if by_source == (args.hq_id is not None) or (by_source and None in (args.robot, args.victim)):
         raise UsageError("mark: give either --robot N --victim ID, or --id HQ_ID")
-    action = OperatorAction.RESCUED if args.rescued else OperatorAction.FALSE_ALARM
+    action = (
+        OperatorAction.RESCUED
+        if args.rescued
+        else OperatorAction.CONFIRMED
+        if args.confirmed
+        else OperatorAction.FALSE_ALARM
+    )
     with _open_registry(args.db, must_exist=True) as registry:
         if by_source:
             targets = [(args.robot, args.victim)]

@@ -12,6 +12,7 @@ import csv
 import io
 import json
 import math
+import socket
 import subprocess
 import sys
 import time
@@ -139,6 +140,17 @@ def test_short_token_refuses_to_start(tmp_path: Path) -> None:
     )  # fmt: skip
     assert done.returncode == 2
     assert "at least 12" in done.stderr
+
+
+def test_console_address_in_use_exits_1(tmp_path: Path) -> None:
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        done = _run_hq(
+            "--db", str(tmp_path / "a.sqlite"), "--web", f"127.0.0.1:{port}", "--duration-s", "5"
+        )  # fmt: skip
+    assert done.returncode == 1
+    assert f"cannot listen on 127.0.0.1:{port}" in done.stderr
+    assert "Traceback" not in done.stderr
 
 
 # -- HTTP against a running HQ ----------------------------------------------------------

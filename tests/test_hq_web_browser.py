@@ -134,6 +134,7 @@ def test_an_action_on_the_page_reaches_the_robot_and_every_page(
         )
     # a note typed on one page shows on the other
     browser.switch_to.window(first)
+    browser.find_element("css selector", f"#victim-{card} .act-note").click()
     field = browser.find_element("css selector", f"#victim-{card} .note-input")
     field.send_keys("team B on the way\n")
     browser.switch_to.window(second)

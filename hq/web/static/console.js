@@ -268,13 +268,14 @@ function actionButton(card, action, text, decisive) {
 function makeCard(id) {
   const card = el("li", { class: "victim", id: `victim-${id}`, dataset: { id: String(id) } });
   const note = el("input", { type: "text", class: "note-input", placeholder: "note for the team…", maxlength: "500" });
-  const noteForm = el("form", { class: "note-form" }, note, el("button", { type: "submit" }, "Add note"));
+  const noteForm = el("form", { class: "note-form", hidden: "" }, note, el("button", { type: "submit" }, "Add note"));
   noteForm.addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const msg = card.querySelector(".msg");
     try {
       await post(`/api/victims/${id}/note`, { text: note.value });
       note.value = "";
+      noteForm.hidden = true;
       msg.textContent = "";
     } catch (e) {
       msg.textContent = `note not saved: ${e.message}`;
@@ -291,7 +292,12 @@ function makeCard(id) {
       el("div", { class: "buttons" },
         actionButton(card, "confirmed", "Confirm", false),
         actionButton(card, "rescued", "Rescued", true),
-        actionButton(card, "false_alarm", "False alarm", true)),
+        actionButton(card, "false_alarm", "False alarm", true),
+        el("button", { class: "act act-note", onclick: (ev) => {
+          ev.stopPropagation();
+          noteForm.hidden = !noteForm.hidden;
+          if (!noteForm.hidden) note.focus();
+        } }, "Note…")),
       noteForm,
       el("div", { class: "msg" })),
   );
@@ -324,8 +330,8 @@ function fillCard(card, v) {
   card.querySelector(".facts").replaceChildren(
     el("div", {}, `N ${signed(v.north_m)} m  E ${signed(v.east_m)} m  ±${v.sigma_m.toFixed(1)} m · ${where}`),
     el("div", {}, `robot ${v.robots.join(", ")} · ${v.visibility_pct.toFixed(0)} % visible · ${v.sightings} sightings`),
-    el("div", {}, "first seen ", el("span", { class: "t", dataset: { t: v.first_seen_unix_s } }, ""),
-      " · last seen ", el("span", { class: "t", dataset: { t: v.last_seen_unix_s } }, "")),
+    el("div", {}, `first seen ${clock(v.first_seen_unix_s)} · last seen `,
+      el("span", { class: "t", dataset: { t: v.last_seen_unix_s } }, "")),
   );
   const sent = card.querySelector(".sent");
   const latest = new Map();
@@ -369,7 +375,9 @@ function drawList() {
   const robots = document.getElementById("robots");
   robots.replaceChildren(...state.robots.map((r) => {
     const s = r.status;
-    const health = s ? `${s.fps.toFixed(1)} fps · outbox ${s.outbox_pending}` : "no status yet";
+    const health = r.link_lost
+      ? (r.last_heard_unix_s > 0 ? `last heard ${clock(r.last_heard_unix_s)}` : "never heard")
+      : s ? `${s.fps.toFixed(1)} fps · outbox ${s.outbox_pending}` : "no status yet";
     return el("span", { class: `robot${r.link_lost ? " lost" : ""}`, dataset: { robot: String(r.sysid) },
       style: `border-color:${robotColour(r.sysid)}` },
     `R${r.sysid} `, el("b", {}, r.link_lost ? "LINK LOST" : "link ok"), ` · ${health}`);
