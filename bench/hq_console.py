@@ -9,12 +9,12 @@ selenium) opens the console. Page load: navigation start to the first state draw
 of a new victim; time from the send to that victim's marker being on the page
 (same machine, same clock), 20 reports, one at a time. Target: under 1 s.
 Memory: the rescue-hq process' resident set (VmRSS, and VmHWM, its peak) with the
-200 victims stored and one page open.
+200 victims stored and one page open. The bench, rescue-hq and Chromium all run
+pinned to the same single core (python -m bench pins itself; children inherit it).
 """
 
 from __future__ import annotations
 
-import os
 import queue
 import shutil
 import statistics
@@ -321,5 +321,4 @@ def run() -> dict[str, object]:
             mem["VmRSS"] / 1024, 1
         ),
         "rescue-hq peak resident memory (MiB)": round(mem["VmHWM"] / 1024, 1),
-        "cores used by the machine": os.cpu_count() or 0,
     }

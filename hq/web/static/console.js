@@ -184,6 +184,9 @@ function drawMap() {
       layer = { marker, ellipse };
       victimLayers.set(v.id, layer);
     }
+    const key = JSON.stringify(v) + (v.id === selectedId);
+    if (layer.key === key) continue; // unchanged: a page with hundreds of victims stays quick
+    layer.key = key;
     layer.ellipse.setLatLngs(ellipsePoints(v));
     layer.ellipse.setStyle({ color: colour, fillColor: colour });
     layer.marker.setLatLng([v.north_m, v.east_m]);
@@ -362,7 +365,11 @@ function drawList() {
       card = makeCard(v.id);
       cards.set(v.id, card);
     }
-    fillCard(card, v);
+    const key = JSON.stringify(v);
+    if (card.hqKey !== key) {
+      card.hqKey = key;
+      fillCard(card, v);
+    }
     if (list.children[i] !== card) list.insertBefore(card, list.children[i] || null);
   });
   for (const [id, card] of cards) {
