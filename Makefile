@@ -7,9 +7,10 @@ SYSTAMP := $(VENV)/.system-packages
 
 .PHONY: demo test lint typecheck pytest bench clean system-packages
 
-# Debian/Raspberry Pi OS packages the project needs: venv support for python3, and
-# systemd's systemd-analyze for the unit-file tests. Installed only when missing.
-$(SYSTAMP):
+# Debian/Raspberry Pi OS packages the project needs: venv support for python3,
+# systemd's systemd-analyze for the unit-file tests, and chromium + chromium-driver for
+# the console's browser tests. Installed only when missing; re-checked when the list changes.
+$(SYSTAMP): tools/system-packages.sh
 	@bash tools/system-packages.sh
 	@mkdir -p $(VENV) && touch $@
 
