@@ -7,8 +7,8 @@ one after the other, and watches for changes: every 0.1 s it compares SQLite's
 ``data_version`` (which moves when the HQ's main thread commits a report, a
 status or an acknowledgement), LiveRobots' version (positions) and the set of
 robots whose link is lost; on a change it builds the whole page state
-(hq.web.state.snapshot) at most every 0.2 s and hands it to the event loop, which
-pushes it to every open page.
+(hq.web.state.snapshot) at most every 0.2 s (every 1 s when only robots moved)
+and hands it to the event loop, which pushes it to every open page.
 
 Operator actions take the HQ's existing path: they are written to the registry's
 ``actions`` table exactly as ``rescue-hq mark`` writes them, and the HQ's main
@@ -67,6 +67,7 @@ log = logging.getLogger(__name__)
 
 _TICK_S = 0.1  # how often the console looks for news in the registry
 _MIN_PUBLISH_S = 0.2  # pages get at most 5 states a second
+_MOVED_PUBLISH_S = 1.0  # and robots' movements alone at most once a second
 _KEEPALIVE_S = 15.0  # an SSE comment line keeps proxies and the browser's timer happy
 _MAX_BODY_BYTES = 4096
 _ACTIONS = {
@@ -204,17 +205,23 @@ class _Database(threading.Thread):
                 if version != db_version:
                     db_version, self._dirty = version, True
                     robots = registry.robots()
-                if self.live.version != live_version:
-                    live_version, self._dirty = self.live.version, True
+                moved = self.live.version != live_version
                 now_lost = robots_lost(robots, self.live, time.time(), self.link_timeout_s)
                 if now_lost != lost:
                     lost, self._dirty = now_lost, True
-                if self._dirty and now - last_publish >= _MIN_PUBLISH_S:
+                since = now - last_publish
+                if (self._dirty and since >= _MIN_PUBLISH_S) or (
+                    moved and since >= _MOVED_PUBLISH_S
+                ):
                     self._dirty = False
+                    live_version = self.live.version
                     last_publish = now
                     self._publish(self.state_json(registry, notes))
             except (RegistryError, sqlite3.Error) as exc:  # busy or locked: the next tick
                 log.debug("console: cannot read the registry: %s", exc)
+            except Exception:  # a bug: say so, keep the pages served with the last state
+                log.exception("console: cannot build the page state")
+                next_tick = time.monotonic() + 1.0
 
     def state_json(self, registry: Registry, notes: Notes) -> str:
         state = snapshot(
