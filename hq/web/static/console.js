@@ -127,7 +127,9 @@ function initMap() {
   }
   map = L.map(box, {
     crs: L.CRS.Simple, minZoom: -4, maxZoom: 6, zoomSnap: 0.25, attributionControl: false,
+    zoomControl: false, // top right, off the grid's north labels on the left edge
   });
+  L.control.zoom({ position: "topright" }).addTo(map);
   map.setView([0, 0], 3);
   gridLayer.addTo(map);
   L.control.scale({ metric: true, imperial: false, maxWidth: 160 }).addTo(map);
@@ -455,7 +457,11 @@ function setConnected(ok) {
 function connect() {
   const source = new EventSource("/api/events");
   source.addEventListener("open", () => setConnected(true));
-  source.addEventListener("error", () => setConnected(false));
+  source.addEventListener("error", () => {
+    setConnected(false);
+    // A restarted rescue-hq with a (new) token answers 401: back to its sign-in page.
+    fetch("/api/state").then((r) => { if (r.status === 401) location.reload(); }, () => {});
+  });
   source.addEventListener("state", (ev) => {
     if (!connected) setConnected(true);
     render(JSON.parse(ev.data));
