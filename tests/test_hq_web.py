@@ -115,6 +115,13 @@ def test_altered_asset_is_named(tmp_path: Path) -> None:
     assert any("leaflet.js is missing or altered" in p for p in problems)
 
 
+def test_assets_verify_names_what_is_missing(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "hq.cli", "assets", "verify", "--dir", str(tmp_path)]
+    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert done.returncode == 2
+    assert "leaflet.js is missing or altered: run `rescue-hq assets fetch`" in done.stderr
+
+
 # -- configuration ----------------------------------------------------------------------
 
 

@@ -87,6 +87,11 @@ def test_victims_appear_on_the_map_and_in_the_list(
         "return [...document.querySelectorAll('.robot-mark')].map(e => e.dataset.robot)"
     )
     assert sorted(robots) == ["1", "2", "3"]  # each robot's position on the map
+    resources = browser.execute_script(
+        "return performance.getEntriesByType('resource').map(e => e.name)"
+    )
+    assert any(r.endswith("/vendor/leaflet.js") for r in resources)
+    assert all(r.startswith(hq.url) for r in resources), resources  # nothing from elsewhere
     # a new report shows without reloading
     mission.report(1, 2, 2.0, -20.0, Urgency.CRITICAL)
     wait_js(browser, "return document.querySelectorAll('[data-victim]').length === 4", 5, "V4")
@@ -189,4 +194,27 @@ def test_with_a_token_the_page_and_its_requests_need_it(browser: Any, tmp_path: 
         status = browser.execute_script("const r = await fetch('/api/state'); return r.status")
         assert status == 200
     finally:
+        assert hq.stop() == 0, hq.stderr
+
+
+def test_without_the_map_library_the_page_says_so_and_lists_victims(
+    browser: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("RESCUE_HQ_ASSET_DIR", str(tmp_path / "no-assets"))
+    hq = HqConsoleProcess(tmp_path)
+    mission = Mission(hq.address, (1,))
+    try:
+        assert "console has no map" in hq.wait_line("console has no map", 5.0)
+        mission.report(1, 1, 3.0, 3.0, Urgency.CRITICAL)
+        browser.get(hq.url)
+        text = wait_js(
+            browser,
+            "const m = document.querySelector('.map-missing'); return m && m.innerText",
+            10,
+            "the missing-map notice",
+        )
+        assert "rescue-hq assets fetch" in text
+        wait_js(browser, "return document.querySelectorAll('#victims > li').length === 1", 5, "V1")
+    finally:
+        mission.close()
         assert hq.stop() == 0, hq.stderr
