@@ -9,8 +9,9 @@ selenium) opens the console. Page load: navigation start to the first state draw
 of a new victim; time from the send to that victim's marker being on the page
 (same machine, same clock), 20 reports, one at a time. Target: under 1 s.
 Memory: the rescue-hq process' resident set (VmRSS, and VmHWM, its peak) with the
-200 victims stored and one page open. The bench, rescue-hq and Chromium all run
-pinned to the same single core (python -m bench pins itself; children inherit it).
+200 victims stored and one page open, and with --no-web for comparison. The
+bench, rescue-hq and Chromium all run pinned to the same single core (python -m
+bench pins itself; children inherit it).
 """
 
 from __future__ import annotations
@@ -47,13 +48,14 @@ class BrowserUnavailable(Exception):
 class HqConsoleProcess:
     """A running `rescue-hq` with its console; stdout lines on a queue."""
 
-    def __init__(self, workdir: Path, *extra: str) -> None:
+    def __init__(self, workdir: Path, *extra: str, console: bool = True) -> None:
         self.db = workdir / "hq.sqlite"
+        web = ["--web", "127.0.0.1:0"] if console else ["--no-web"]
         cmd = [
             sys.executable, "-m", "hq.cli",
             "--listen", "udpin:127.0.0.1:0",
             "--db", str(self.db),
-            "--no-table", "--web", "127.0.0.1:0", *extra,
+            "--no-table", *web, *extra,
         ]  # fmt: skip
         self.proc = subprocess.Popen(
             cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -68,7 +70,11 @@ class HqConsoleProcess:
             pump.start()
         try:
             self.address = ("127.0.0.1", int(self.wait_line("listening on", 20.0).rsplit(":")[-1]))
-            self.url = self.wait_line("console on", 20.0).split("console on ", 1)[1].split()[0]
+            self.url = (
+                self.wait_line("console on", 20.0).split("console on ", 1)[1].split()[0]
+                if console
+                else ""
+            )
         except TimeoutError:
             self.stop()
             raise
@@ -280,7 +286,22 @@ return true;
 """
 
 
+def _memory_without_console() -> float:
+    """rescue-hq's VmRSS (MiB) with the same 200 victims and --no-web, for comparison."""
+    with tempfile.TemporaryDirectory(prefix="hq-console-") as tmp:
+        hq = HqConsoleProcess(Path(tmp), console=False)
+        mission = Mission(hq.address)
+        try:
+            mission.drive(30.0)
+            mission.populate(_VICTIMS)
+            return round(hq.rss_kib()["VmRSS"] / 1024, 1)
+        finally:
+            mission.close()
+            hq.stop()
+
+
 def run() -> dict[str, object]:
+    without = _memory_without_console()
     driver = chromium()
     try:
         with console_mission() as (hq, mission):
@@ -321,4 +342,5 @@ def run() -> dict[str, object]:
             mem["VmRSS"] / 1024, 1
         ),
         "rescue-hq peak resident memory (MiB)": round(mem["VmHWM"] / 1024, 1),
+        "rescue-hq resident memory, same, --no-web (MiB)": without,
     }
