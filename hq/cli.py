@@ -102,7 +102,8 @@ def _run_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rescue-hq",
         description="Receive, acknowledge, merge and export victim reports from rescue robots. "
-        "Other commands: mark, export, list (rescue-hq COMMAND --help).",
+        "Other commands: mark, export, list, assets (rescue-hq COMMAND --help). "
+        "The operator's browser console is on by default (docs/HQ.md).",
     )
     p.add_argument(
         "--listen",
@@ -236,11 +237,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     live = LiveRobots()
     stop = threading.Event()
     _install_signal_handlers(stop)  # before anything is printed: a stop then is clean too
+    console = _console(args, live)  # a bad console setting: exit 2 before any file is made
     registry = _open_registry(args.db, must_exist=False)
     try:
         if args.origin is not None:
             registry.set_default_origin(args.origin)
-        console = _console(args, live)
         endpoints = _open_endpoints(specs)
         try:
             if console is not None and not _start_console(console, required=args.web is not None):
