@@ -136,6 +136,7 @@ def test_network_address_without_token_refuses_to_start(tmp_path: Path) -> None:
     assert "reachable from the network" in done.stderr
     assert "--web-token-file" in done.stderr
     assert "Traceback" not in done.stderr
+    assert not (tmp_path / "a.sqlite").exists()  # refused before anything was made
 
 
 def test_short_token_refuses_to_start(tmp_path: Path) -> None:
