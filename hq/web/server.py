@@ -1,14 +1,9 @@
 """The console's web server: Starlette on uvicorn, in rescue-hq's process.
 
 Threads (besides the HQ's own): ``hq-web`` runs uvicorn's event loop (HTTP,
-server-sent events); ``hq-web-db`` owns the console's own registry connection
-and notes, runs every database job the pages ask for (actions, notes, exports)
-one after the other, and watches for changes: every 0.1 s it compares SQLite's
-``data_version`` (which moves when the HQ's main thread commits a report, a
-status or an acknowledgement), LiveRobots' version (positions) and the set of
-robots whose link is lost; on a change it builds the whole page state
-(hq.web.state.snapshot) at most every 0.2 s (every 1 s when only robots moved)
-and hands it to the event loop, which pushes it to every open page.
+server-sent events; every open page gets each new state from hq.web.feed.Hub);
+``hq-web-db`` (hq.web.feed.ConsoleDatabase) owns the console's registry
+connection, runs the pages' writes and builds the states.
 
 Operator actions take the HQ's existing path: they are written to the registry's
 ``actions`` table exactly as ``rescue-hq mark`` writes them, and the HQ's main
@@ -23,24 +18,18 @@ configured token is required everywhere (cookie from the sign-in form, or
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
-import csv
 import html
-import io
 import json
 import logging
-import queue
 import socket
 import sqlite3
 import threading
-import time
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager, suppress
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from importlib import resources
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any
 
 import uvicorn
 from starlette.applications import Starlette
@@ -56,18 +45,16 @@ from starlette.responses import (
 )
 from starlette.routing import Route
 
-from hq import export
 from hq.registry import OperatorAction, Registry, RegistryError
 from hq.view import HqVictim, hq_victims
 from hq.web import access, assets
+from hq.web.downloads import EXPORTS, export_job
+from hq.web.feed import ConsoleDatabase, Hub, Job, NoPictures, Pictures, T
 from hq.web.notes import BadNote, Notes
-from hq.web.state import LiveRobots, robots_lost, snapshot
+from hq.web.state import LiveRobots
 
 log = logging.getLogger(__name__)
 
-_TICK_S = 0.1  # how often the console looks for news in the registry
-_MIN_PUBLISH_S = 0.2  # pages get at most 5 states a second
-_MOVED_PUBLISH_S = 1.0  # and robots' movements alone at most once a second
 _KEEPALIVE_S = 15.0  # an SSE comment line keeps proxies and the browser's timer happy
 _MAX_BODY_BYTES = 4096
 _ACTIONS = {
@@ -75,8 +62,6 @@ _ACTIONS = {
     "rescued": OperatorAction.RESCUED,
     "false_alarm": OperatorAction.FALSE_ALARM,
 }
-T = TypeVar("T")
-_Job = tuple[Callable[["Registry", "Notes"], Any], "concurrent.futures.Future[Any]"]
 
 
 class ConsoleError(Exception):
@@ -92,151 +77,6 @@ class ConsoleOptions:
     asset_dir: Path | None = None
 
 
-class Pictures(Protocol):
-    """Evidence pictures by HQ victim ID (JPEG bytes). The robots do not send any yet."""
-
-    def ids(self) -> frozenset[int]: ...
-
-    def jpeg(self, hq_id: int) -> bytes | None: ...
-
-
-class NoPictures:
-    def ids(self) -> frozenset[int]:
-        return frozenset()
-
-    def jpeg(self, hq_id: int) -> bytes | None:
-        return None
-
-
-class _Hub:
-    """The latest page state, in the event loop; SSE streams wait on it."""
-
-    def __init__(self) -> None:
-        self.version = 0
-        self.data = ""
-        self.closing = False
-        self._changed = asyncio.Event()
-
-    def publish(self, data: str) -> None:
-        self.version += 1
-        self.data = data
-        self._changed.set()
-        self._changed = asyncio.Event()
-
-    def close(self) -> None:
-        self.closing = True
-        self._changed.set()
-
-    async def wait(self, seen: int, timeout_s: float) -> None:
-        if self.version != seen or self.closing:
-            return
-        with suppress(TimeoutError):
-            await asyncio.wait_for(self._changed.wait(), timeout_s)
-
-
-class _Database(threading.Thread):
-    """The console's database thread: jobs in order, and the watch for news."""
-
-    def __init__(
-        self,
-        db_path: Path,
-        live: LiveRobots,
-        pictures: Pictures,
-        link_timeout_s: float,
-        publish: Callable[[str], None],
-    ) -> None:
-        super().__init__(name="hq-web-db", daemon=True)
-        self.db_path = db_path
-        self.live = live
-        self.pictures = pictures
-        self.link_timeout_s = link_timeout_s
-        self._publish = publish
-        self._jobs: queue.Queue[_Job] = queue.Queue()
-        self._halt = threading.Event()
-        self.opened = threading.Event()
-        self.open_error: str | None = None
-        self._dirty = True
-
-    def submit(self, job: Callable[[Registry, Notes], T]) -> concurrent.futures.Future[T]:
-        future: concurrent.futures.Future[T] = concurrent.futures.Future()
-        self._jobs.put((job, future))
-        return future
-
-    def stop(self) -> None:
-        self._halt.set()
-
-    def run(self) -> None:
-        try:
-            registry = Registry(self.db_path)
-            notes = Notes(self.db_path)
-        except (RegistryError, sqlite3.Error) as exc:
-            self.open_error = str(exc)
-            self.opened.set()
-            return
-        self.opened.set()
-        try:
-            self._loop(registry, notes)
-        finally:
-            notes.close()
-            registry.close()
-
-    def _loop(self, registry: Registry, notes: Notes) -> None:
-        db_version = live_version = -1
-        lost: frozenset[int] = frozenset()
-        robots = registry.robots()
-        next_tick = last_publish = 0.0
-        while not self._halt.is_set():
-            try:
-                job, future = self._jobs.get(timeout=max(0.0, next_tick - time.monotonic()))
-            except queue.Empty:
-                pass
-            else:
-                if future.set_running_or_notify_cancel():
-                    try:
-                        future.set_result(job(registry, notes))
-                    except BaseException as exc:  # handed to the request that asked
-                        future.set_exception(exc)
-                self._dirty = True
-                continue
-            now = time.monotonic()
-            next_tick = now + _TICK_S
-            try:
-                version = registry.data_version()
-                if version != db_version:
-                    db_version, self._dirty = version, True
-                    robots = registry.robots()
-                moved = self.live.version != live_version
-                now_lost = robots_lost(robots, self.live, time.time(), self.link_timeout_s)
-                if now_lost != lost:
-                    lost, self._dirty = now_lost, True
-                since = now - last_publish
-                if (self._dirty and since >= _MIN_PUBLISH_S) or (
-                    moved and since >= _MOVED_PUBLISH_S
-                ):
-                    self._dirty = False
-                    live_version = self.live.version
-                    last_publish = now
-                    self._publish(self.state_json(registry, notes))
-            except (RegistryError, sqlite3.Error) as exc:  # busy or locked: the next tick
-                log.debug("console: cannot read the registry: %s", exc)
-            except Exception:  # a bug: say so, keep the pages served with the last state
-                log.exception("console: cannot build the page state")
-                next_tick = time.monotonic() + 1.0
-
-    def state_json(self, registry: Registry, notes: Notes) -> str:
-        state = snapshot(
-            hq_victims(registry),
-            registry.robots(),
-            registry.actions(),
-            notes.all(),
-            self.live.tracks(),
-            self.pictures.ids(),
-            time.time(),
-            self.link_timeout_s,
-        )
-        return json.dumps(state, separators=(",", ":"))
-
-
 def _static(name: str) -> str:
     return resources.files("hq.web").joinpath("static", name).read_text(encoding="utf-8")
 
@@ -248,7 +88,7 @@ def _find(registry: Registry, hq_id: int) -> HqVictim:
     raise LookupError(f"no HQ victim {hq_id}")
 
 
-def _act(hq_id: int, action: OperatorAction) -> Callable[[Registry, Notes], list[int]]:
+def _act(hq_id: int, action: OperatorAction) -> Job[list[int]]:
     def job(registry: Registry, _notes: Notes) -> list[int]:
         victim = _find(registry, hq_id)
         return [registry.add_action(r, v, action) for r, v in victim.sources]
@@ -256,67 +96,10 @@ def _act(hq_id: int, action: OperatorAction) -> Callable[[Registry, Notes], list
     return job
 
 
-def _note(hq_id: int, text: str) -> Callable[[Registry, Notes], int]:
+def _note(hq_id: int, text: str) -> Job[int]:
     def job(registry: Registry, notes: Notes) -> int:
         _find(registry, hq_id)
         return notes.add(hq_id, text).note_id
-
-    return job
-
-
-def _iso_utc(unix_s: float) -> str:
-    return datetime.fromtimestamp(unix_s, UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
-
-
-def csv_bytes(victims: list[HqVictim]) -> bytes:
-    """Every HQ victim, one row each, local and global positions (spreadsheets, paper)."""
-    out = io.StringIO()
-    w = csv.writer(out)
-    w.writerow(
-        [
-            "id", "urgency", "state", "visibility_pct", "robots", "north_m", "east_m",
-            "sigma_m", "lat_deg", "lon_deg", "alt_m", "first_seen", "last_seen", "sightings",
-        ]
-    )  # fmt: skip
-    for v in victims:
-        w.writerow(
-            [
-                v.hq_id,
-                v.urgency.name,
-                v.state.name,
-                f"{v.visibility_pct:.1f}",
-                " ".join(str(r) for r in v.robots),
-                f"{v.north_m:.2f}",
-                f"{v.east_m:.2f}",
-                f"{v.sigma_m:.2f}",
-                "" if v.lat_deg is None else f"{v.lat_deg:.7f}",
-                "" if v.lon_deg is None else f"{v.lon_deg:.7f}",
-                "" if v.alt_m is None else f"{v.alt_m:.2f}",
-                _iso_utc(v.first_seen_unix_s),
-                _iso_utc(v.last_seen_unix_s),
-                v.observations,
-            ]
-        )
-    return out.getvalue().encode()
-
-
-_EXPORTS: dict[str, tuple[str, Callable[[list[HqVictim], Any], bytes]]] = {
-    export.GEOJSON_NAME: (
-        "application/geo+json",
-        lambda vs, _o: json.dumps(export.geojson(vs), indent=1).encode(),
-    ),
-    export.KML_NAME: ("application/vnd.google-earth.kml+xml", lambda vs, _o: export.kml(vs)),
-    export.PLAN_NAME: (
-        "application/json",
-        lambda vs, o: json.dumps(export.plan(vs, o), indent=4).encode(),
-    ),
-    "victims.csv": ("text/csv", lambda vs, _o: csv_bytes(vs)),
-}
-
-
-def _export(name: str) -> Callable[[Registry, Notes], bytes]:
-    def job(registry: Registry, _notes: Notes) -> bytes:
-        return _EXPORTS[name][1](hq_victims(registry), registry.default_origin())
 
     return job
 
@@ -337,10 +120,12 @@ class Console:
         self.pictures = pictures or NoPictures()
         self.asset_dir = options.asset_dir or assets.default_asset_dir()
         self.asset_problems = assets.verify(self.asset_dir)
-        self._hub: _Hub | None = None
+        self._hub: Hub | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._ready = threading.Event()
-        self._db = _Database(db_path, live, self.pictures, options.link_timeout_s, self._publish)
+        self._db = ConsoleDatabase(
+            db_path, live, self.pictures, options.link_timeout_s, self._publish
+        )
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
         self._sock: socket.socket | None = None
@@ -404,7 +189,7 @@ class Console:
         @asynccontextmanager
         async def lifespan(_app: Starlette) -> AsyncIterator[None]:
             self._loop = asyncio.get_running_loop()
-            self._hub = _Hub()
+            self._hub = Hub()
             self._ready.set()
             yield
 
@@ -423,7 +208,7 @@ class Console:
         app = Starlette(routes=routes, lifespan=lifespan)
         return access.Access(app, self.options.token, _static("login.html"))
 
-    async def _run(self, job: Callable[[Registry, Notes], T]) -> T:
+    async def _run(self, job: Job[T]) -> T:
         return await asyncio.wrap_future(self._db.submit(job))
 
     async def _page(self, _request: Request) -> Response:
@@ -539,15 +324,15 @@ class Console:
 
     async def _export_file(self, request: Request) -> Response:
         name = request.path_params["name"]
-        if name not in _EXPORTS:
+        if name not in EXPORTS:
             return PlainTextResponse(f"no export {name!r}", status_code=404)
         try:
-            data = await self._run(_export(name))
+            data = await self._run(export_job(name))
         except RegistryError as exc:
             return PlainTextResponse(f"cannot read the registry: {exc}", status_code=503)
         return Response(
             data,
-            media_type=_EXPORTS[name][0],
+            media_type=EXPORTS[name][0],
             headers={"Content-Disposition": f'attachment; filename="{name}"'},
         )
 
