@@ -529,6 +529,7 @@ class Service:
         states = {
             m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
             m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
+            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
         }
         state = states.get(msg.action)
         if state is None:

@@ -44,6 +44,7 @@ from hq.sources import SourceTable
 from hq.transport import Endpoint, Peer
 from hq.unstored import UnstoredReports
 from hq.view import hq_victims
+from hq.web.state import LiveRobots
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import (
     RESCUE_MESSAGE_IDS,
@@ -86,6 +87,7 @@ class HqOptions:
     live_table: bool = False
     duration_s: float | None = None
     source_idle_s: float = 120.0  # a source (link, address) silent this long is forgotten
+    live: LiveRobots | None = None  # for the console: who was heard, where robots are
 
 
 @dataclass(frozen=True)
@@ -263,6 +265,8 @@ class HqApp:
                         continue
                     route = Route(index, peer, True, route.sysid, route.compid)
                     msg = inner
+                if self.options.live is not None:
+                    self.options.live.heard(msg.get_srcSystem(), time.time())
                 self._dispatch(msg, route, reports)
             refused = decoder.counters.signature_rejected - refused_before
             if refused:
@@ -290,6 +294,9 @@ class HqApp:
             self._on_ack(msg)
         elif msg_id == self._m.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
             self._on_origin(msg)
+        elif msg_id == self._m.MAVLINK_MSG_ID_LOCAL_POSITION_NED and self.options.live is not None:
+            # The robot's autopilot, heard through the same radio/router as its reports.
+            self.options.live.position(msg.get_srcSystem(), msg.x, msg.y, time.time())
 
     def _on_report(self, msg: Any, route: Route, reports: list[Any]) -> None:
         try:

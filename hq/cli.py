@@ -2,10 +2,13 @@
 
     rescue-hq [run] [--listen URL ...] [--db PATH] [--sysid N] [--export-dir DIR]
                     [--signing-key FILE] [--origin LAT,LON,ALT] [--no-table]
-                    [--sbs HOST:PORT|off] [--duration-s T] [-v]
-    rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID) (--rescued | --false-alarm)
+                    [--sbs HOST:PORT|off] [--duration-s T] [--web HOST:PORT | --no-web]
+                    [--web-token-file FILE] [--link-timeout-s T] [-v]
+    rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID)
+                     (--rescued | --false-alarm | --confirmed)
     rescue-hq export --db PATH --out DIR [--origin LAT,LON,ALT]
     rescue-hq list   --db PATH
+    rescue-hq assets fetch|verify
 
 Exit status: 0 ok; 1 runtime failure (a link cannot be opened, an export cannot
 be written); 2 bad usage, configuration or database (a clear one-line message
@@ -22,6 +25,7 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from fusion.types import GlobalOrigin
 from hq import epoch, export, table
@@ -32,9 +36,13 @@ from hq.registry import Registry, RegistryCorrupt, RegistryError
 from hq.sbs import DEFAULT_ADDRESS, SbsServer
 from hq.transport import SingleLink, UdpHubLink, open_endpoint
 from hq.view import build, hq_victims
+from hq.web.state import LiveRobots
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError
 from mavlink_io.linkspec import LinkSpec, parse_link
 from mavlink_io.signing import load_signing
+
+if TYPE_CHECKING:
+    from hq.web.server import Console
 
 log = logging.getLogger("hq")
 
@@ -43,8 +51,9 @@ EXIT_RUNTIME = 1
 EXIT_USAGE = 2
 DEFAULT_LISTEN = "udpin:0.0.0.0:14600"
 DEFAULT_DB = "rescue-hq.sqlite"
-_SUBCOMMANDS = ("run", "mark", "export", "list")
 SBS_OFF = "off"
+DEFAULT_WEB = "127.0.0.1:8080"
+_SUBCOMMANDS = ("run", "mark", "export", "list", "assets")
 
 
 class UsageError(Exception):
@@ -94,11 +103,24 @@ def _duration(text: str) -> float:
     return value
 
 
+def _web_address(text: str) -> tuple[str, int]:
+    host, sep, port_text = text.rpartition(":")
+    host = host.strip("[]")
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not sep or not host or not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HOST:PORT, e.g. {DEFAULT_WEB}")
+    return host, port
+
+
 def _run_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rescue-hq",
         description="Receive, acknowledge, merge and export victim reports from rescue robots. "
-        "Other commands: mark, export, list (rescue-hq COMMAND --help).",
+        "Other commands: mark, export, list, assets (rescue-hq COMMAND --help). "
+        "The operator's browser console is on by default (docs/HQ.md).",
     )
     p.add_argument(
         "--listen",
@@ -126,7 +148,40 @@ def _run_parser() -> argparse.ArgumentParser:
         "when that port is taken; off: no feed)",
     )
     p.add_argument("--duration-s", type=_duration, help="run this long, then exit cleanly")
+    web = p.add_mutually_exclusive_group()
+    web.add_argument(
+        "--web",
+        type=_web_address,
+        metavar="HOST:PORT",
+        help=f"the browser console's address (default {DEFAULT_WEB}; port 0 picks one); "
+        "an address other than loopback needs --web-token-file. When the default port "
+        "is taken, rescue-hq runs on without the console and says so",
+    )
+    web.add_argument("--no-web", action="store_true", help="no browser console")
+    p.add_argument(
+        "--web-token-file",
+        type=Path,
+        help="file holding the console's token (one line, 12+ characters); "
+        "every page and request must then give it",
+    )
+    p.add_argument(
+        "--link-timeout-s",
+        type=_duration,
+        default=5.0,
+        help="the console shows a robot's link as lost after this long unheard (default 5)",
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
+    return p
+
+
+def _assets_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rescue-hq assets",
+        description="The console's map library (Leaflet) from the npm registry, checked by "
+        "sha512/sha256 (make runs `fetch` on set-up; nothing is fetched at run time).",
+    )
+    p.add_argument("action", choices=("fetch", "verify"))
+    p.add_argument("--dir", type=Path, help="asset folder (default: in the installation)")
     return p
 
 
@@ -143,6 +198,7 @@ def _mark_parser() -> argparse.ArgumentParser:
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--rescued", action="store_true")
     what.add_argument("--false-alarm", action="store_true")
+    what.add_argument("--confirmed", action="store_true", help="a real person (reopens)")
     return p
 
 
@@ -190,12 +246,42 @@ def _open_registry(path: Path, *, must_exist: bool, recover: bool = False) -> Re
     return registry
 
 
+def _read_token(path: Path) -> str:
+    try:
+        token = path.read_text(encoding="utf-8").strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"console token file {path}: cannot read: {exc}") from None
+    if not token or "\n" in token:
+        raise UsageError(f"console token file {path}: expected one line with the token")
+    return token
+
+
+def _console(args: argparse.Namespace, live: LiveRobots) -> Console | None:
+    if args.no_web:
+        return None
+    # Imported here: the web stack loads only when the console is on.
+    from hq.web.access import AccessConfigError
+    from hq.web.server import Console, ConsoleOptions
+
+    host, port = args.web or _web_address(DEFAULT_WEB)
+    token = _read_token(args.web_token_file) if args.web_token_file else None
+    options = ConsoleOptions(host, port, token, args.link_timeout_s)
+    try:
+        return Console(args.db, options, live)
+    except AccessConfigError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     try:
         specs = [parse_link(url) for url in (args.listen or [DEFAULT_LISTEN])]
         signing = load_signing(args.signing_key) if args.signing_key else None
     except (LinkSpecError, SigningError) as exc:
         raise UsageError(str(exc)) from None
+    live = LiveRobots()
+    stop = threading.Event()
+    _install_signal_handlers(stop)  # before anything is printed: a stop then is clean too
+    console = _console(args, live)  # a bad console setting: exit 2 before any file is made
     registry = _open_registry(args.db, must_exist=False, recover=True)
     try:
         if args.origin is not None:
@@ -207,16 +293,17 @@ def _cmd_run(args: argparse.Namespace) -> int:
         sbs: SbsServer | None = None
         try:
             sbs = _open_sbs(args.sbs)
+            if console is not None and not _start_console(console, required=args.web is not None):
+                console = None
             options = HqOptions(
                 sysid=args.sysid,
                 export_dir=args.export_dir,
                 signing=signing,
                 live_table=not args.no_table and sys.stdout.isatty(),
                 duration_s=args.duration_s,
+                live=live,
             )
             app = HqApp(registry, endpoints, options, sys.stdout, sbs)
-            stop = threading.Event()
-            _install_signal_handlers(stop)
             app.run(stop)
             c = app.counters
             log.info(
@@ -233,11 +320,35 @@ def _cmd_run(args: argparse.Namespace) -> int:
         finally:
             if sbs is not None:
                 sbs.close()
+            if console is not None:
+                console.stop()
             for ep in endpoints:
                 ep.close()
     finally:
         registry.close()
     return EXIT_OK
+
+
+def _start_console(console: Console, *, required: bool) -> bool:
+    """Start the console; False when the default address is taken (the HQ runs on)."""
+    from hq.web.server import ConsoleError
+
+    try:
+        url = console.start()
+    except ConsoleError as exc:
+        if required:
+            raise LinkError(str(exc)) from None
+        print(
+            f"rescue-hq: {exc}; running without the console (give --web HOST:PORT)",
+            file=sys.stderr,
+            flush=True,
+        )
+        return False
+    note = " (token required)" if console.options.token else ""
+    print(f"rescue-hq: console on {url}{note}", flush=True)
+    for problem in console.asset_problems:
+        print(f"rescue-hq: console has no map: {problem}", flush=True)
+    return True
 
 
 def _open_endpoints(specs: list[LinkSpec]) -> list[UdpHubLink | SingleLink]:
@@ -298,7 +409,13 @@ def _cmd_mark(args: argparse.Namespace) -> int:
     by_source = args.robot is not None or args.victim is not None
     if by_source == (args.hq_id is not None) or (by_source and None in (args.robot, args.victim)):
         raise UsageError("mark: give either --robot N --victim ID, or --id HQ_ID")
-    action = OperatorAction.RESCUED if args.rescued else OperatorAction.FALSE_ALARM
+    action = (
+        OperatorAction.RESCUED
+        if args.rescued
+        else OperatorAction.CONFIRMED
+        if args.confirmed
+        else OperatorAction.FALSE_ALARM
+    )
     with _open_registry(args.db, must_exist=True) as registry:
         if by_source:
             targets = [(args.robot, args.victim)]
@@ -351,6 +468,24 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_assets(args: argparse.Namespace) -> int:
+    from hq.web import assets
+
+    if args.action == "verify":
+        problems = assets.verify(args.dir)
+        for line in problems:
+            print(line, file=sys.stderr)
+        return EXIT_USAGE if problems else EXIT_OK
+    try:
+        written = assets.fetch(args.dir)
+    except assets.FetchError as exc:
+        print(f"rescue-hq: {exc}", file=sys.stderr)
+        return EXIT_RUNTIME
+    folder = args.dir or assets.default_asset_dir()
+    print(f"console assets ok in {folder} ({len(written)} written, checked by sha256)")
+    return EXIT_OK
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     command = argv[0] if argv and argv[0] in _SUBCOMMANDS else "run"
@@ -361,6 +496,7 @@ def main(argv: list[str] | None = None) -> int:
         "mark": (_mark_parser, _cmd_mark),
         "export": (_export_parser, _cmd_export),
         "list": (_list_parser, _cmd_list),
+        "assets": (_assets_parser, _cmd_assets),
     }
     make_parser, run = parsers[command]
     args = make_parser().parse_args(argv)  # exits 2 on bad usage

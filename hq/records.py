@@ -59,6 +59,7 @@ class OperatorAction(Enum):
 
     RESCUED = 1
     FALSE_ALARM = 2
+    CONFIRMED = 4  # the operator saw the evidence: a real person (reopens a resolved one)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ _STATE_RANK = {
 _ACTION_STATE = {
     OperatorAction.RESCUED: TrackState.RESCUED,
     OperatorAction.FALSE_ALARM: TrackState.FALSE_ALARM,
+    OperatorAction.CONFIRMED: TrackState.CONFIRMED,
 }
 
 
