@@ -87,7 +87,7 @@ def test_full_disk_keeps_running_and_stores_when_space_returns(start_hq, small_f
             assert ack_for(robot, msg.report_seq).result == ACCEPTED
         hq.wait_line("writable again", ACK_TIMEOUT_S, stderr=True)
     assert hq.stop() == 0
-    assert not any("Traceback" in line for line in hq.stderr)
+    assert not any("Traceback" in line for line in hq.stderr), "".join(hq.stderr)
     with Registry(hq.db) as reg:
         assert sorted(s.report.victim_id for s in reg.sources()) == list(range(1, 12))
 

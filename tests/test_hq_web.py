@@ -27,7 +27,7 @@ import pytest
 import npmfetch
 from bench.hq_console import HqConsoleProcess, Mission
 from fusion.types import TrackState, Urgency
-from hq.records import Action, OperatorAction, Robot
+from hq.records import Action, OperatorAction, Robot, RobotStatus
 from hq.view import HqVictim
 from hq.web import assets
 from hq.web.state import LiveRobots, ellipse_95, robots_lost, snapshot
@@ -101,6 +101,14 @@ def test_link_lost_after_the_timeout() -> None:
     live.heard(1, 108.0)  # a heartbeat of robot 1's, not stored in the registry
     live.heard(255, 90.0)  # a ground station, not a robot: never "lost"
     assert robots_lost(robots, live, 110.0, 5.0) == frozenset({2})
+
+
+def test_a_robots_status_reaches_the_page_as_json() -> None:
+    status = RobotStatus(30.0, 9.5, 1.0, 80.0, 0, 2, 1, 3)
+    robots = [Robot(1, 191, 0.0, 100.0, status, 100.0, None)]
+    state = json.loads(json.dumps(snapshot([], robots, [], [], {}, frozenset(), 101.0, 5.0)))
+    assert state["robots"][0]["status"]["fps"] == 9.5
+    assert state["robots"][0]["status"]["outbox_pending"] == 3
 
 
 def test_npm_tarball_integrity_is_checked() -> None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from fusion.types import TrackState
@@ -171,7 +171,7 @@ def _robot(
     heard = max(
         robot.last_heard_unix_s if robot else 0.0, track.last_heard_unix_s if track else 0.0
     )
-    status = robot.status if robot else None
+    status = asdict(robot.status) if robot and robot.status else None
     return {
         "sysid": sysid,
         "last_heard_unix_s": heard,
