@@ -5,11 +5,12 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SYSTAMP := $(VENV)/.system-packages
 
-.PHONY: demo test lint typecheck pytest bench fuzz-companion clean system-packages
+.PHONY: demo test lint typecheck pytest bench fuzz fuzz-companion clean system-packages
 
-# Debian/Raspberry Pi OS packages the project needs: venv support for python3, and
-# systemd's systemd-analyze for the unit-file tests. Installed only when missing.
-$(SYSTAMP):
+# Debian/Raspberry Pi OS packages the project needs: venv support for python3,
+# systemd's systemd-analyze for the unit-file tests, and chromium + chromium-driver for
+# the console's browser tests. Installed only when missing; re-checked when the list changes.
+$(SYSTAMP): tools/system-packages.sh
 	@bash tools/system-packages.sh
 	@mkdir -p $(VENV) && touch $@
 
@@ -24,6 +25,9 @@ $(STAMP): pyproject.toml $(SYSTAMP)
 	# The person models (MediaPipe, Apache-2.0) from the npm registry, checked by sha256,
 	# into .venv/share/rescue-companion/models; nothing is downloaded at run time.
 	$(BIN)/rescue-companion models fetch
+	# The console's map library (Leaflet, BSD-2-Clause) from the npm registry, checked by
+	# sha512 and sha256, into .venv/share/rescue-companion/web; never fetched at run time.
+	$(BIN)/rescue-hq assets fetch
 	@touch $@
 
 demo: $(STAMP)
@@ -36,7 +40,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 typecheck: $(STAMP)
-	$(BIN)/mypy companion mavlink_io fusion scenarios hq
+	$(BIN)/mypy companion mavlink_io fusion scenarios hq npmfetch
 
 pytest: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -49,6 +53,13 @@ bench: $(STAMP)
 fuzz-companion: $(STAMP)
 	FUZZ_SECONDS=$${FUZZ_SECONDS:-60} FUZZ_SEED=$${FUZZ_SEED:-$$(date +%s)} \
 		$(BIN)/python -m pytest -q tests/test_mavlink_vehicle_fuzz.py
+
+# The HQ receive path and the dialect decoder under 40000 hostile valid-CRC messages
+# (the default test run sends 1500). A fresh seed each time; FUZZ_SEED=N replays one.
+FUZZ_SEED ?= $(shell od -An -N4 -tu4 /dev/urandom | tr -d ' ')
+fuzz: $(STAMP)
+	@echo "fuzz seed $(FUZZ_SEED)"
+	FUZZ_SEED=$(FUZZ_SEED) FUZZ_MESSAGES=40000 $(BIN)/python -m pytest -q tests/test_hq_fuzz.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache .pytest_cache

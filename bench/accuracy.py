@@ -40,6 +40,8 @@ import numpy as np
 
 from companion.config import load_config
 from companion.replay import replay, result_document
+from fusion.camera import CameraModel
+from scenarios.camera import default_camera
 from scenarios.record import record
 from scenarios.score import (
     ScoreResult,
@@ -57,6 +59,8 @@ BASELINE_FORMAT = "rescue-bench-accuracy/1"
 START_UNIX_S = 1_700_000_000.0  # simulation time 0 of every mission (a fixed clock)
 SUITE_FPS = 5.0
 GATE_M = 1.0
+WIDE_LENS_DISTORTION = (-0.30, 0.09, 0.0, 0.0, -0.01)
+LAWNMOWER_SEED = 0  # a generated world with 6 victims, searched end to end
 
 # How much worse than the baseline a guard scenario may measure before the test fails.
 # Recorded missions are deterministic on one machine; these allow for another CPU's
@@ -82,6 +86,7 @@ class Scenario:
     world: str  # "preset:<name>" or "seed:<int>"
     duration_s: float | None = None  # None: the whole route (its duration + 2 s)
     fps: float = SUITE_FPS
+    lens: str = "default"  # "default": the sim camera; "wide": strong barrel distortion
 
     def make_world(self) -> World:
         kind, _, arg = self.world.partition(":")
@@ -91,6 +96,16 @@ class Scenario:
             return generate_world(int(arg))
         raise ValueError(f"scenario {self.key}: world {self.world!r} is not preset:NAME or seed:N")
 
+    def camera(self) -> CameraModel:
+        camera = default_camera()
+        if self.lens == "default":
+            return camera
+        if self.lens == "wide":
+            # A cheap wide-angle lens: strong barrel distortion, as the Pi's M12 lenses.
+            k = dataclasses.replace(camera.intrinsics, distortion=WIDE_LENS_DISTORTION)
+            return dataclasses.replace(camera, intrinsics=k)
+        raise ValueError(f"scenario {self.key}: lens {self.lens!r} is not default or wide")
+
     def settings(self) -> dict[str, Any]:
         return {**dataclasses.asdict(self), "start_unix_s": START_UNIX_S, "gate_m": GATE_M}
 
@@ -99,8 +114,10 @@ class Scenario:
 # and the no-victim worlds are searched end to end for false victims.
 SUITE: tuple[Scenario, ...] = (
     *(Scenario(name, f"preset:{name}") for name in PRESETS),
+    Scenario("wide_lens", "preset:mixed", lens="wide"),
     Scenario("seed1", "seed:1"),
     Scenario("seed2", "seed:2"),
+    Scenario("lawnmower", f"seed:{LAWNMOWER_SEED}"),
 )
 # The test's subset: the start of two routes, long enough that every victim of these
 # worlds is in view and reported (code 06dadf5 at 5 frames/s: "mixed" victims first
@@ -175,6 +192,7 @@ def measure_one(scenario: Scenario, work_dir: Path) -> tuple[dict[str, Any], Sco
         work_dir,
         duration_s=scenario.duration_s,
         fps=scenario.fps,
+        camera=scenario.camera(),
         start_unix_s=START_UNIX_S,
     )
     recorded = time.perf_counter()

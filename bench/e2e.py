@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.motion import lawnmower
@@ -68,7 +67,6 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
         cfg.write_text(
             f'[vehicle]\nurl = "{sim.vehicle_url}"\n[hq]\nurl = ""\ntunnel = true\n'
             f'[camera]\nsource = "{sim.camera_source}"\n[paths]\nstate_dir = "{out / "state"}"\n'
-            + SIM_DETECTOR_TOML
         )
         ground = GroundPeer(sim.ground_url)
         ground.acking.set()

@@ -101,7 +101,7 @@ class MountConfig:
     y_m: float = 0.0  # right
     z_m: float = -0.20  # down (negative: above)
     roll_deg: float = 0.0
-    pitch_deg: float = -25.0  # negative: tilted down
+    pitch_deg: float = -12.0  # negative: tilted down
     yaw_deg: float = 0.0
 
 
@@ -183,17 +183,21 @@ class ReportingConfig:
     """What is told to the HQ, and when."""
 
     statustext: bool = True  # STATUSTEXT that a stock QGC shows and speaks
-    map_marker: bool = True  # CAMERA_IMAGE_CAPTURED at the victim (needs a global origin)
     status_period_s: float = 1.0  # RESCUE_STATUS and our HEARTBEAT period
     move_threshold_sigma: float = 1.0  # re-report after moving this many sigmas
     move_min_m: float = 0.3  # ... and at least this far
     update_min_interval_s: float = 5.0  # quiet updates of one victim at most this often
+    announce_severity: int = 5  # MAV_SEVERITY of a new LIGHT/MEDIUM victim (<= 5: spoken)
 
     def __post_init__(self) -> None:
         _positive(self, "status_period_s")
         _positive(self, "move_threshold_sigma")
         if not (self.move_min_m >= 0 and self.update_min_interval_s >= 0):
             raise ValueError("move_min_m and update_min_interval_s must be >= 0")
+        if not 0 <= self.announce_severity <= 7:
+            raise ValueError(
+                f"announce_severity = {self.announce_severity}: must be a MAV_SEVERITY 0..7"
+            )
 
 
 @dataclass(frozen=True)
@@ -214,6 +218,38 @@ class PathsConfig:
 
 
 @dataclass(frozen=True)
+class VideoConfig:
+    """The live camera view with the detections drawn, for QGC's video widget:
+    H.264 (libx264) in MPEG-TS over UDP, advertised by the camera protocol."""
+
+    enabled: bool = True
+    host: str = ""  # where QGC runs; "" = the host of [hq] url (QGC beside rescue-hq)
+    port: int = 5600  # QGC's video port (VIDEO_STREAM_INFORMATION tells QGC)
+    component_id: int = 100  # the camera's MAVLink component: QGC looks for cameras at 100-105
+    bitrate_kbps: float = 1000.0
+    width_px: int = 640
+    height_px: int = 480
+    fps: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.port <= 65535:
+            raise ValueError(f"port = {self.port}: must be 1..65535")
+        if not 100 <= self.component_id <= 105:
+            raise ValueError(
+                f"component_id = {self.component_id}: must be 100..105 "
+                "(MAV_COMP_ID_CAMERA..CAMERA6, where QGC looks for cameras)"
+            )
+        if not 50.0 <= self.bitrate_kbps <= 20000.0:
+            raise ValueError(f"bitrate_kbps = {self.bitrate_kbps}: must be 50..20000")
+        for name in ("width_px", "height_px"):
+            value = getattr(self, name)
+            if not (16 <= value <= 1920 and value % 2 == 0):
+                raise ValueError(f"{name} = {value}: must be even, 16..1920")
+        if not 0.5 <= self.fps <= 30.0:
+            raise ValueError(f"fps = {self.fps}: must be 0.5..30")
+
+
+@dataclass(frozen=True)
 class Config:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     hq: HqConfig = field(default_factory=HqConfig)
@@ -224,6 +260,7 @@ class Config:
     tracker: TrackerParams = field(default_factory=TrackerParams)
     reporting: ReportingConfig = field(default_factory=ReportingConfig)
     paths: PathsConfig = field(default_factory=PathsConfig)
+    video: VideoConfig = field(default_factory=VideoConfig)
 
 
 def _positive(owner: object, name: str) -> None:

@@ -1,17 +1,19 @@
 """A mission map PNG: the route, and victims coloured by urgency with their
-uncertainty ellipses (2 sigma), north up, east right."""
+uncertainty ellipses (2 sigma), north up, east right, a 1 m grid, a legend; for a
+simulated mission also the debris and the true victims, labelled."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from fusion.registry import Victim
-from fusion.types import TrackState, Urgency
+from fusion.types import Cov2, TrackState, Urgency
 
 URGENCY_BGR = {
     Urgency.LIGHT: (60, 170, 40),  # green
@@ -21,27 +23,77 @@ URGENCY_BGR = {
 _CANVAS_PX = 900
 _MARGIN_PX = 50
 _MIN_SPAN_M = 4.0
+_ROUTE_BGR = (150, 110, 60)
+_DEBRIS_BGR = (185, 185, 185)
+_TEXT_BGR = (30, 30, 30)
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+@dataclass(frozen=True)
+class MapVictim:
+    """A reported victim as the map draws it."""
+
+    label: str  # e.g. "#3" (companion) or "V3" (HQ)
+    urgency: Urgency
+    north_m: float
+    east_m: float
+    cov_ne_m2: Cov2
+    visibility_pct: float
+    confirmed: bool = True
+
+    @classmethod
+    def of(cls, v: Victim) -> MapVictim:
+        confirmed = v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
+        return cls(
+            f"#{v.victim_id}",
+            v.urgency,
+            v.north_m,
+            v.east_m,
+            v.cov_ne_m2,
+            v.visibility_pct,
+            confirmed,
+        )
+
+
+@dataclass(frozen=True)
+class MapTruth:
+    """A true victim of a simulated world."""
+
+    label: str  # e.g. "T1"
+    urgency: Urgency
+    north_m: float
+    east_m: float
 
 
 def draw_mission_map(
     path: Path,
     route_ne_m: Sequence[tuple[float, float]],
-    victims: Sequence[Victim],
-    truth_ne_m: Sequence[tuple[float, float]] = (),
+    victims: Sequence[MapVictim],
+    truth: Sequence[MapTruth] = (),
+    debris_ne_m: Sequence[np.ndarray] = (),
+    extent_ne_m: tuple[float, float, float, float] | None = None,
 ) -> None:
-    """Route, victims and, for simulated missions, the true victims (black crosses)."""
-    points = list(route_ne_m) + [(v.north_m, v.east_m) for v in victims] + list(truth_ne_m)
-    if points:
-        n = np.array([p[0] for p in points])
-        e = np.array([p[1] for p in points])
-        n0, n1, e0, e1 = n.min() - 1, n.max() + 1, e.min() - 1, e.max() + 1
+    """Write the map. ``extent_ne_m`` (n0, n1, e0, e1) fixes the area shown (a
+    simulated world's floor); by default it is what the route and victims span."""
+    if extent_ne_m is not None:
+        n0, n1, e0, e1 = extent_ne_m
     else:
-        n0, n1, e0, e1 = -2.0, 2.0, -2.0, 2.0
+        points = (
+            list(route_ne_m)
+            + [(v.north_m, v.east_m) for v in victims]
+            + [(t.north_m, t.east_m) for t in truth]
+        )
+        if points:
+            n = np.array([p[0] for p in points])
+            e = np.array([p[1] for p in points])
+            n0, n1, e0, e1 = n.min() - 1, n.max() + 1, e.min() - 1, e.max() + 1
+        else:
+            n0, n1, e0, e1 = -2.0, 2.0, -2.0, 2.0
     span_m = max(n1 - n0, e1 - e0, _MIN_SPAN_M)
     scale = (_CANVAS_PX - 2 * _MARGIN_PX) / span_m  # px per metre
     h = int((n1 - n0) * scale) + 2 * _MARGIN_PX
-    w = int((e1 - e0) * scale) + 2 * _MARGIN_PX
-    img = np.full((max(h, 200), max(w, 300), 3), 250, np.uint8)
+    w = int((e1 - e0) * scale) + 2 * _MARGIN_PX + 190  # room on the right for the legend
+    img = np.full((max(h, 260), max(w, 300), 3), 250, np.uint8)
 
     def px(north_m: float, east_m: float) -> tuple[int, int]:
         return (
@@ -49,15 +101,23 @@ def draw_mission_map(
             int(img.shape[0] - _MARGIN_PX - (north_m - n0) * scale),
         )
 
-    # 1 m grid
-    for k in range(math.floor(e0), math.ceil(e1) + 1):
-        cv2.line(img, px(n0, k), px(n1, k), (225, 225, 225), 1)
-    for k in range(math.floor(n0), math.ceil(n1) + 1):
-        cv2.line(img, px(k, e0), px(k, e1), (225, 225, 225), 1)
+    for k in range(math.ceil(e0), math.floor(e1) + 1):  # 1 m grid
+        cv2.line(img, px(n0, k), px(n1, k), (228, 228, 228), 1)
+    for k in range(math.ceil(n0), math.floor(n1) + 1):
+        cv2.line(img, px(k, e0), px(k, e1), (228, 228, 228), 1)
+    cv2.rectangle(img, px(n1, e0), px(n0, e1), (200, 200, 200), 1)
+    for poly in debris_ne_m:
+        pts = np.array([px(float(n), float(e)) for n, e in poly], np.int32)
+        cv2.fillPoly(img, [pts], _DEBRIS_BGR, cv2.LINE_AA)
     if len(route_ne_m) > 1:
         pts = np.array([px(n, e) for n, e in route_ne_m], np.int32)
-        cv2.polylines(img, [pts], False, (150, 110, 60), 2, cv2.LINE_AA)
-        cv2.circle(img, px(*route_ne_m[0]), 6, (150, 110, 60), -1)
+        cv2.polylines(img, [pts], False, _ROUTE_BGR, 2, cv2.LINE_AA)
+        cv2.circle(img, px(*route_ne_m[0]), 6, _ROUTE_BGR, -1)
+    right_px = int(_MARGIN_PX + (e1 - e0) * scale)
+    for t in truth:
+        at = px(t.north_m, t.east_m)
+        cv2.drawMarker(img, at, (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA)
+        _label(img, f"{t.label} {t.urgency.name}", at, right_px, below=True)
     for v in victims:
         colour = URGENCY_BGR[v.urgency]
         (a, b), (_, d) = v.cov_ne_m2
@@ -66,34 +126,56 @@ def draw_mission_map(
         major = vecs[:, 1]
         angle = math.degrees(math.atan2(-major[0], major[1]))
         axes = (
-            max(2, int(2 * math.sqrt(vals[1]) * scale)),
-            max(2, int(2 * math.sqrt(vals[0]) * scale)),
+            max(2, int(2 * math.sqrt(max(vals[1], 0.0)) * scale)),
+            max(2, int(2 * math.sqrt(max(vals[0], 0.0)) * scale)),
         )
         centre = px(v.north_m, v.east_m)
         cv2.ellipse(img, centre, axes, angle, 0, 360, colour, 2, cv2.LINE_AA)
-        filled = -1 if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY) else 2
-        cv2.circle(img, centre, 7, colour, filled, cv2.LINE_AA)
-        label = f"#{v.victim_id} {v.urgency.name} {v.visibility_pct:.0f}%"
-        cv2.putText(
-            img,
-            label,
-            (centre[0] + 10, centre[1] - 8),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.5,
-            (30, 30, 30),
-            1,
-            cv2.LINE_AA,
-        )
-    for true_n, true_e in truth_ne_m:
-        cv2.drawMarker(
-            img, px(true_n, true_e), (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA
-        )
+        cv2.circle(img, centre, 7, colour, -1 if v.confirmed else 2, cv2.LINE_AA)
+        label = f"{v.label} {v.urgency.name} {v.visibility_pct:.0f}%"
+        _label(img, label, centre, right_px, below=False)
+    _legend(img, right_px + 20, bool(truth), bool(debris_ne_m))
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
-    cv2.putText(img, "1 m", (20, img.shape[0] - 28), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+    cv2.putText(img, "1 m", (20, img.shape[0] - 28), _FONT, 0.45, (0, 0, 0), 1)
     x = img.shape[1] - 30
-    cv2.arrowedLine(img, (x, 50), (x, 15), (0, 0, 0), 2, tipLength=0.35)
-    cv2.putText(img, "N", (x - 6, 68), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 2)
+    cv2.arrowedLine(
+        img, (x, img.shape[0] - 30), (x, img.shape[0] - 65), (0, 0, 0), 2, tipLength=0.35
+    )
+    cv2.putText(img, "N", (x - 6, img.shape[0] - 12), _FONT, 0.55, (0, 0, 0), 2)
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), img):
         raise OSError(f"cannot write {path}")
+
+
+def _label(img: np.ndarray, text: str, at: tuple[int, int], right_px: int, *, below: bool) -> None:
+    """A label beside a marker, kept inside the map (left of it near the right edge)."""
+    (tw, th), _ = cv2.getTextSize(text, _FONT, 0.5, 1)
+    x = at[0] + 10 if at[0] + 10 + tw <= right_px else at[0] - 10 - tw
+    y = at[1] + 8 + th if below else at[1] - 8
+    x = int(np.clip(x, 2, img.shape[1] - tw - 2))
+    y = int(np.clip(y, th + 2, img.shape[0] - 4))
+    cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
+
+
+def _legend(img: np.ndarray, x: int, truth: bool, debris: bool) -> None:
+    y = 30
+    cv2.putText(img, "Legend", (x, y), _FONT, 0.55, _TEXT_BGR, 2, cv2.LINE_AA)
+    for urgency, colour in URGENCY_BGR.items():
+        y += 26
+        cv2.circle(img, (x + 8, y - 5), 7, colour, -1, cv2.LINE_AA)
+        cv2.putText(img, f"{urgency.name} victim", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    y += 26
+    cv2.ellipse(img, (x + 8, y - 5), (10, 6), 0, 0, 360, (90, 90, 90), 2, cv2.LINE_AA)
+    cv2.putText(img, "95 % area (2 sigma)", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    y += 26
+    cv2.line(img, (x, y - 5), (x + 16, y - 5), _ROUTE_BGR, 2, cv2.LINE_AA)
+    cv2.putText(img, "rover path", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    if truth:
+        y += 26
+        cv2.drawMarker(img, (x + 8, y - 5), (0, 0, 0), cv2.MARKER_TILTED_CROSS, 14, 2)
+        cv2.putText(img, "true victim (sim)", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    if debris:
+        y += 26
+        cv2.rectangle(img, (x, y - 12), (x + 16, y + 2), _DEBRIS_BGR, -1)
+        cv2.putText(img, "debris", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)

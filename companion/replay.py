@@ -22,7 +22,7 @@ from typing import Any
 
 from companion.calibration import camera_model
 from companion.config import Config
-from companion.missionmap import draw_mission_map
+from companion.missionmap import MapVictim, draw_mission_map
 from companion.pipeline import Pipeline
 from companion.reporting import ReportPolicy
 from companion.sources import EndOfStream, Frame
@@ -259,5 +259,5 @@ def write_outputs(result: ReplayResult, out_json: Path) -> Path:
     finally:
         tmp.unlink(missing_ok=True)
     png = out_json.with_suffix(".png")
-    draw_mission_map(png, result.route_ne_m, result.victims)
+    draw_mission_map(png, result.route_ne_m, [MapVictim.of(v) for v in result.victims])
     return png

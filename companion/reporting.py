@@ -1,8 +1,13 @@
 """When to tell the HQ about a victim: the reporting policy. Pure logic, no I/O.
 
 A victim is reported
-- when it is confirmed (NEW; announced to people: STATUSTEXT and a map marker);
-- again when its urgency class changes (announced);
+- when it is confirmed (NEW; announced to people, spoken: STATUSTEXT with a
+  severity QGC speaks);
+- again when its urgency class changes. People hear of it only when the victim
+  reaches a class higher than any announced before (spoken when that class is
+  CRITICAL, quiet text otherwise): a class flapping between MEDIUM and CRITICAL is
+  announced once per class, and a de-escalation is never announced (the HQ still
+  gets every change in the full report);
 - when it has moved by more than ``move_threshold_sigma`` of its uncertainty and by
   at least ``move_min_m`` since the last report, and that report is at least
   ``update_min_interval_s`` old (quiet: the full report and the map marker, no
@@ -39,15 +44,18 @@ class Reported:
     north_m: float
     east_m: float
     t_unix_s: float  # when it was reported
+    announced: Urgency  # the highest urgency people were told of
 
 
 @dataclass(frozen=True)
 class Decision:
-    """Report ``victim`` with these flags; ``announce``: also tell people (STATUSTEXT)."""
+    """Report ``victim`` with these flags; ``announce``: also tell people (STATUSTEXT);
+    ``spoken``: with a severity QGC speaks (else quiet text)."""
 
     victim: Victim
     flags: int
     announce: bool
+    spoken: bool = False
 
 
 class ReportPolicy:
@@ -82,7 +90,8 @@ class ReportPolicy:
             if self._moved(victim, last, now_unix_s):
                 decisions[victim.victim_id] = Decision(victim, FLAG_MOVED, announce=False)
         for d in decisions.values():
-            self._record(d.victim, now_unix_s)
+            tells_urgency = d.announce and d.flags & (FLAG_NEW | FLAG_URGENCY_CHANGED)
+            self._record(d.victim, now_unix_s, announced=bool(tells_urgency))
         return list(decisions.values())
 
     def _moved(self, victim: Victim, last: Reported, now_unix_s: float) -> bool:
@@ -110,7 +119,7 @@ class ReportPolicy:
         last = self.reported.get(v.victim_id)
         if event.kind is EventKind.CONFIRMED:
             if last is None:
-                return Decision(v, FLAG_NEW, announce=True)
+                return Decision(v, FLAG_NEW, announce=True, spoken=True)
             return None  # already reported (e.g. before a restart)
         if last is None and event.kind is not EventKind.MERGED:
             # Not yet reported: nothing to update. A merge of a never-reported track
@@ -119,7 +128,11 @@ class ReportPolicy:
         if event.kind is EventKind.URGENCY_CHANGED:
             if last is not None and last.urgency == v.urgency:
                 return None
-            return Decision(v, FLAG_URGENCY_CHANGED, announce=True)
+            if last is not None and v.urgency <= last.announced:
+                return Decision(v, FLAG_URGENCY_CHANGED, announce=False)  # flapping, or better
+            return Decision(
+                v, FLAG_URGENCY_CHANGED, announce=True, spoken=v.urgency is Urgency.CRITICAL
+            )
         if event.kind is EventKind.MERGED:
             return Decision(v, 0, announce=True) if last is not None else None
         if event.kind is EventKind.OPERATOR:
@@ -127,31 +140,48 @@ class ReportPolicy:
         # NOT_SEEN_RECENTLY, SEEN_AGAIN: the state changed; the HQ should know.
         return Decision(v, 0, announce=False)
 
-    def _record(self, v: Victim, now_unix_s: float) -> None:
-        self.reported[v.victim_id] = Reported(v.state, v.urgency, v.north_m, v.east_m, now_unix_s)
+    def _record(self, v: Victim, now_unix_s: float, *, announced: bool = False) -> None:
+        last = self.reported.get(v.victim_id)
+        told = v.urgency if last is None else last.announced
+        if announced:
+            told = max(told, v.urgency)
+        self.reported[v.victim_id] = Reported(
+            v.state, v.urgency, v.north_m, v.east_m, now_unix_s, told
+        )
 
     # -- persistence ---------------------------------------------------------------
 
     def snapshot(self) -> dict[str, Any]:
         return {
-            str(vid): [r.state.name, r.urgency.name, r.north_m, r.east_m, r.t_unix_s]
+            str(vid): [
+                r.state.name,
+                r.urgency.name,
+                r.north_m,
+                r.east_m,
+                r.t_unix_s,
+                r.announced.name,
+            ]
             for vid, r in self.reported.items()
         }
 
     def restore(self, snapshot: Any) -> None:
-        """Load what was reported; ValueError naming the bad entry."""
+        """Load what was reported; ValueError naming the bad entry. An entry saved
+        before announcements were tracked (five fields) counts its urgency as told."""
         if not isinstance(snapshot, dict):
             raise ValueError("reported-state snapshot must be a JSON object")
         reported: dict[int, Reported] = {}
         for key, value in snapshot.items():
             try:
-                state, urgency, north_m, east_m, t_unix_s = value
+                state, urgency, north_m, east_m, t_unix_s, *rest = value
+                if len(rest) > 1:
+                    raise ValueError("too many fields")
                 reported[int(key)] = Reported(
                     TrackState[state],
                     Urgency[urgency],
                     float(north_m),
                     float(east_m),
                     float(t_unix_s),
+                    Urgency[rest[0] if rest else urgency],
                 )
             except (KeyError, TypeError, ValueError):
                 raise ValueError(f"reported-state entry {key!r} = {value!r} is malformed") from None
@@ -161,4 +191,4 @@ class ReportPolicy:
 def _merge(a: Decision | None, b: Decision) -> Decision:
     if a is None:
         return b
-    return Decision(b.victim, a.flags | b.flags, a.announce or b.announce)
+    return Decision(b.victim, a.flags | b.flags, a.announce or b.announce, a.spoken or b.spoken)

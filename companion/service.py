@@ -6,7 +6,8 @@ Threads (docs/ARCHITECTURE.md):
 - camera: frames into a one-slot mailbox (a newer frame replaces an unprocessed
   one; the drop is counted);
 - processing: pipeline, operator actions, persistence, systemd watchdog;
-- reporter: outbox sends and resends, people-facing messages, RESCUE_STATUS.
+- reporter: outbox sends and resends, announcements (rate-limited), health
+  conditions (HQ link, disk), RESCUE_STATUS.
 
 The processing thread commits a frame's consequences (tracker, what was reported,
 the new reports and their outbox entries) in one SQLite transaction; the outbox
@@ -19,7 +20,9 @@ reporter, the one owner of the outbox.
 from __future__ import annotations
 
 import logging
+import math
 import queue
+import shutil
 import statistics
 import threading
 import time
@@ -29,8 +32,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from companion.announcements import Announcement, Announcements, Conditions
 from companion.calibration import camera_model
 from companion.config import Config
+from companion.params import Settings
 from companion.pipeline import FrameOutcome, Pipeline
 from companion.reporting import Decision, ReportPolicy
 from companion.sdnotify import Notifier, watchdog_period_s
@@ -44,13 +49,16 @@ from companion.sources import (
 )
 from companion.state import load_state
 from companion.store import StoreError
+from companion.video import Label, VideoStreamer, labels_in_view, shot
 from companion.vision import make_detector
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import convert, dialect, statustext
+from mavlink_io.camera import CameraServer, StreamInfo
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.hqlink import HqLink
 from mavlink_io.link import ReconnectingLink
 from mavlink_io.linkspec import parse_link
+from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
 from mavlink_io.reliable import Deduplicator, Outbox
 from mavlink_io.signing import Signing, load_signing
 from mavlink_io.tlog import TlogWriter
@@ -67,6 +75,14 @@ _STOP_POLL_S = 0.1  # how often the main thread looks for a stop signal
 _SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
 _FIRST_WAIT_NOTE_S = 3.0  # no autopilot this long after start (or a loss): say so
 _WAIT_NOTE_PERIOD_S = 30.0  # ... and again this often while it lasts
+_DISK_FULL_BYTES = 64 * 1024 * 1024  # less free space than this on the state disk is "full"
+# What people are told when a health condition changes: (text, MAV_SEVERITY) when it
+# goes bad, when it is fine again. Severity 5 (NOTICE) or more urgent: QGC speaks it.
+_CONDITION_WORDS = {
+    "camera": (("camera lost", 3), ("camera back", 5)),
+    "hq": (("HQ link lost", 4), ("HQ link back", 5)),
+    "disk": (("disk full", 4), ("disk space free again", 5)),
+}
 
 
 @dataclass(frozen=True)
@@ -156,6 +172,14 @@ class Service:
         state = load_state(config.paths.state_dir, config.tracker, self.policy)
         self.store, self.tracker, self._report_seq = state.store, state.tracker, state.report_seq
         self._state_problem = state.problem  # announced once the threads run
+        # Parameters set from the ground override the config file's values (companion/params.py).
+        self.settings = Settings(
+            config, self.store.get("params"), self._apply_settings, self._save_settings
+        )
+        config = self.config = self.settings.config
+        self.policy.update_min_interval_s = config.reporting.update_min_interval_s
+        self.param_server = ParamServer(self.settings, config.vehicle.component_id, self._m)
+        self.ground_requests: queue.Queue[MavMessage] = queue.Queue(maxsize=64)
         self.camera_model = camera_model(config.camera)
         self.pipeline = Pipeline(
             config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
@@ -173,8 +197,9 @@ class Service:
                 self.frames_dir = None
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
-        self.people: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
         self.acks: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
+        self.announcements = Announcements()
+        self.conditions = Conditions()
         self.dedupe = Deduplicator()
         self.chunk_ids = statustext.ChunkIds()
         self._wake_reporter = threading.Event()
@@ -219,6 +244,26 @@ class Service:
                 self.tlog,
             )
         self.camera = open_camera(config.camera)
+        # The camera is its own component (QGC looks for cameras at 100-105 only),
+        # with its own codec (its own sequence numbers) on the vehicle link.
+        self.camera_codec = Codec(v.system_id or 1, config.video.component_id, self.signing)
+        self.vehicle.other_components = frozenset({config.video.component_id})
+        self.video, self.camera_server = self._video(config)
+
+    def _video(self, config: Config) -> tuple[VideoStreamer | None, CameraServer | None]:
+        """The live video for QGC and the camera protocol that advertises it, when on
+        and a destination is known ([video] host, else the host of [hq] url)."""
+        v = config.video
+        host = v.host or (parse_link(config.hq.url).host if config.hq.url else "")
+        if not v.enabled or not host:
+            log.info("no video: %s", "[video] enabled = false" if not v.enabled else "no host")
+            return None, None
+        k = self.camera_model.intrinsics
+        hfov_deg = math.degrees(2.0 * math.atan(0.5 * k.width_px / k.fx_px))
+        info = StreamInfo(
+            v.port, v.width_px, v.height_px, v.fps, round(v.bitrate_kbps * 1000), hfov_deg
+        )
+        return VideoStreamer(v, host), CameraServer(v.component_id, info, self._m)
 
     # -- state -------------------------------------------------------------------------
 
@@ -280,42 +325,35 @@ class Service:
         self._wake_reporter.set()
 
     def _queue_people(self, d: Decision, report: Any) -> None:
-        rep = self.config.reporting
-        msgs: list[MavMessage] = []
-        if d.announce and rep.statustext:
-            msgs += statustext.victim_statustext(report, self.chunk_ids, self._m)
-        if rep.map_marker and d.victim.state in (
-            TrackState.CONFIRMED,
-            TrackState.NOT_SEEN_RECENTLY,
-        ):
-            origin = self.vehicle.origin
-            pose = self.vehicle.poses.latest()
-            marker = convert.victim_marker_msg(
-                report,
-                pose.t_boot_s if pose else 0.0,
-                time.time(),
-                origin.alt_m if origin else None,
-                self._m,
+        if d.announce:
+            text = statustext.victim_text(report)
+            severity = statustext.victim_severity(
+                report, d.spoken, self.config.reporting.announce_severity
             )
-            if marker is not None:
-                msgs.append(marker)
-        for msg in msgs:
-            try:
-                self.people.put_nowait(msg)
-            except queue.Full:
-                log.warning("people-facing queue full; %s dropped", msg.get_type())
+            self._put_announcement(text, severity)
 
     def announce(self, text: str, severity: int) -> None:
-        """A status line for people (QGC shows it; NOTICE and above are spoken)."""
+        """A status line for people, naming this robot (QGC shows it; NOTICE and
+        more urgent are spoken)."""
+        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
+        self._put_announcement(f"{statustext.robot_label(sysid)} {text}", severity)
+
+    def _put_announcement(self, text: str, severity: int) -> None:
         log.info("announce: %s", text)
         if not self.config.reporting.statustext:
             return
-        for msg in statustext.statustext_msgs(text, severity, self.chunk_ids, self._m):
-            try:
-                self.people.put_nowait(msg)
-            except queue.Full:
-                return
+        spoken = severity <= statustext.MAV_SEVERITY_NOTICE
+        self.announcements.put(Announcement(text, severity, spoken))
         self._wake_reporter.set()
+
+    def _condition(self, name: str, ok: bool) -> None:
+        """A health condition's state; its changes are announced once each."""
+        self._announce_changes(self.conditions.update(name, ok, time.monotonic()))
+
+    def _announce_changes(self, changes: list[tuple[str, bool]]) -> None:
+        for name, ok in changes:
+            text, severity = _CONDITION_WORDS[name][ok]
+            self.announce(text, severity)
 
     # -- links ---------------------------------------------------------------------------
 
@@ -326,7 +364,14 @@ class Service:
 
     def _on_dialect(self, msg: MavMessage) -> None:
         """From a link thread, which never writes SQLite: acknowledgements go to the
-        reporter (the outbox's owner), operator actions to processing."""
+        reporter (the outbox's owner); operator actions, parameter requests and
+        commands to processing."""
+        if msg.get_type() in PARAM_MESSAGE_TYPES or msg.get_type() == "COMMAND_LONG":
+            try:
+                self.ground_requests.put_nowait(msg)
+            except queue.Full:
+                log.warning("ground request queue full; %s dropped", msg.get_type())
+            return
         if msg.get_msgId() == dialect.RESCUE_ACK_ID:
             try:
                 self.acks.put_nowait(msg)
@@ -368,7 +413,6 @@ class Service:
         return run
 
     def _camera_loop(self) -> None:
-        was_ok: bool | None = None
         while not self.stop.is_set():
             try:
                 frame = self.camera.read(timeout_s=0.5)
@@ -377,17 +421,14 @@ class Service:
             except EndOfStream as exc:
                 log.info("camera: %s", exc)
                 self._camera_ok = False
-                self.announce("Camera stream ended", 4)
+                self.announce("camera stream ended", 4)
                 self.stop.wait()
                 return
             except CameraError as exc:
                 log.debug("camera: %s", exc)
                 frame = None
             ok = frame is not None or self.camera.healthy
-            if ok != was_ok:
-                if was_ok is not None:
-                    self.announce("Camera back" if ok else "Camera lost", 6 if ok else 3)
-                was_ok = ok
+            self._condition("camera", ok)
             self._camera_ok = ok
             if frame is not None:
                 self.mailbox.put(frame)
@@ -414,6 +455,7 @@ class Service:
                 self.stop.wait()
                 return
             self._handle_actions()
+            self._handle_ground_requests()
             self._check_origin()
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
@@ -422,6 +464,7 @@ class Service:
             if frame is not None:
                 outcome = self.pipeline.process(frame, self.vehicle.poses)
                 self._after_frame(outcome)
+                self._offer_video(frame, outcome)
                 if (
                     outcome.decisions
                     or (outcome.events and time.monotonic() - last_save > 0.5)
@@ -435,6 +478,16 @@ class Service:
             if watchdog_s is not None and now >= next_ping:
                 self.notifier.watchdog()
                 next_ping = now + watchdog_s
+
+    def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
+        if self.video is None:
+            return
+        labels: tuple[Label, ...] = ()
+        if outcome.pose is not None:
+            labels = labels_in_view(
+                self.camera_model, outcome.pose, self.tracker.victims(), self._floor_down_m
+            )
+        self.video.offer(shot(frame.image, outcome.detections, labels))
 
     def _check_origin(self) -> None:
         """Victims reported before the EKF origin was known (or under another origin)
@@ -490,6 +543,46 @@ class Service:
             )
             self._send_dialect(ack)
 
+    def _handle_ground_requests(self) -> None:
+        """Answer parameter and camera requests (processing thread: it owns the
+        detector, the policy and the store)."""
+        while True:
+            try:
+                msg = self.ground_requests.get_nowait()
+            except queue.Empty:
+                return
+            if self.camera_server is not None:
+                pose = self.vehicle.poses.latest()
+                for reply in self.camera_server.handle(msg, pose.t_boot_s if pose else 0.0) or []:
+                    self._send_camera(reply)
+            handled = self.param_server.handle(msg)
+            if handled is None:
+                continue
+            for reply in handled.replies:
+                self.vehicle.send(reply)
+            if handled.refused:
+                self.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
+
+    def _send_camera(self, msg: MavMessage) -> None:
+        """A message from the camera component (the vehicle's system ID, 100)."""
+        if self.vehicle.sysid:
+            self.camera_codec.src_system = self.vehicle.sysid
+        self.vehicle.send_encoded(self.camera_codec.encode(msg))
+
+    def _apply_settings(self, config: Config) -> None:
+        if config.video != self.config.video:  # on/off or bit rate: a new stream
+            if self.video is not None:
+                self.video.close()
+            self.video, self.camera_server = self._video(config)
+            if self.video is not None:
+                self.video.start()
+        self.config = config
+        self.pipeline.detector.min_score = config.detector.min_score
+        self.policy.update_min_interval_s = config.reporting.update_min_interval_s
+
+    def _save_settings(self, snapshot: dict[str, Any]) -> None:
+        self.store.set("params", snapshot)
+
     def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
         """The reports an operator action causes; None if it cannot be applied."""
         m = self._m
@@ -500,6 +593,7 @@ class Service:
         states = {
             m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
             m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
+            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
         }
         state = states.get(msg.action)
         if state is None:
@@ -522,12 +616,10 @@ class Service:
         while not self.stop.is_set():
             self._apply_acks()
             self.outbox.poll()
-            while True:
-                try:
-                    self._send_plain(self.people.get_nowait())
-                except queue.Empty:
-                    break
             now = time.monotonic()
+            for a in self.announcements.take(now):
+                for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
+                    self._send_plain(msg)
             connected = self.vehicle.connected
             if connected != was_connected:
                 self._link_changed(connected)
@@ -540,11 +632,23 @@ class Service:
             if now >= next_status:
                 next_status = now + period
                 self._send_status(now)
+                self._check_health(now)
+                if self.camera_server is not None:  # the camera's own heartbeat: QGC finds it
+                    m = self._m
+                    self._send_camera(
+                        m.MAVLink_heartbeat_message(
+                            m.MAV_TYPE_CAMERA, m.MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE, 3
+                        )
+                    )
             if now >= next_summary:
                 next_summary = now + _SUMMARY_PERIOD_S
                 self._log_summary()
-            due = self.outbox.seconds_until_due()
-            wait = next_status - now if due is None else min(due, next_status - now)
+            waits = [
+                next_status - now,
+                self.outbox.seconds_until_due(),
+                self.announcements.seconds_until_due(now),
+            ]
+            wait = min(w for w in waits if w is not None)
             self._wake_reporter.wait(max(0.01, wait))
             self._wake_reporter.clear()
 
@@ -577,14 +681,27 @@ class Service:
             if self.outbox.on_ack(ack):
                 log.debug("report %d acknowledged", ack.seq)
 
+    def _check_health(self, now: float) -> None:
+        """The HQ link (when there is a direct one; heard within hq_timeout_s, judged
+        from hq_timeout_s after start) and the state disk."""
+        if self.hq is not None and now - self.started_mono_s >= self.config.hq.hq_timeout_s:
+            self._condition("hq", self.hq.heard_within(self.config.hq.hq_timeout_s))
+        try:
+            free = shutil.disk_usage(self.config.paths.state_dir).free
+        except OSError as exc:
+            log.debug("free space of %s: %s", self.config.paths.state_dir, exc)
+        else:
+            self._condition("disk", free >= _DISK_FULL_BYTES)
+        self._announce_changes(self.conditions.due(now))  # a flapping one settled
+
     def _link_changed(self, connected: bool) -> None:
         if connected:
             known = self._counts[0]
-            self.announce(f"Rescue companion online, {known} victims known", 5)
+            self.announce(f"companion online, {known} victims known", 5)
             self.outbox.resend_all_now()
         else:
             # The autopilot cannot hear this; the HQ link (if any) can.
-            self.announce("Rescue companion: vehicle link lost", 3)
+            self.announce("companion: vehicle link lost", 3)
 
     def _log_summary(self) -> None:
         c = self.pipeline.counters
@@ -665,6 +782,8 @@ class Service:
             t.start()
         if self._state_problem is not None:
             self.announce("Rescue companion: saved state unusable, started afresh", 3)
+        if self.video is not None:
+            self.video.start()
         self.notifier.ready(
             f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
         )
@@ -699,6 +818,8 @@ class Service:
         except Exception:
             log.exception("saving the victim registry at shutdown failed")
         self.camera.close()
+        if self.video is not None:
+            self.video.close()
         if self.hq is not None:
             self.hq.close()
         self.vehicle.close()

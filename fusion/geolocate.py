@@ -240,6 +240,54 @@ def _body_outline(length_m: float, width_m: float, heading_rad: float) -> FloatA
     return local @ np.array([[c, sn], [-sn, c]])  # rotate by heading (north towards east)
 
 
+def _convex_hull(points: FloatArray) -> FloatArray:
+    """Convex hull (Andrew's monotone chain), counter-clockwise, of (N, 2) points."""
+    pts = sorted(set(map(tuple, np.round(points, 12))))
+    if len(pts) < 3:
+        return np.asarray(pts, float).reshape(-1, 2)
+
+    def half(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        out: list[tuple[float, float]] = []
+        for p in seq:
+            while (
+                len(out) >= 2
+                and (
+                    (out[-1][0] - out[-2][0]) * (p[1] - out[-2][1])
+                    - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0])
+                )
+                <= 0
+            ):
+                out.pop()
+            out.append(p)
+        return out
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.asarray(lower[:-1] + upper[:-1], float)
+
+
+def _box_faces(outline_ne: FloatArray, bottom_down: float, top_down: float) -> list[FloatArray]:
+    """The faces (NED polygons) of the prism over a floor outline: its top (or the
+    outline itself when the prism is flat) and one side per outline edge."""
+    n = len(outline_ne)
+    top = np.column_stack([outline_ne, np.full(n, top_down)])
+    if top_down == bottom_down:
+        return [top]
+    faces = [top]
+    for i in range(n):
+        a, b = outline_ne[i], outline_ne[(i + 1) % n]
+        faces.append(
+            np.array(
+                [
+                    [a[0], a[1], bottom_down],
+                    [b[0], b[1], bottom_down],
+                    [b[0], b[1], top_down],
+                    [a[0], a[1], top_down],
+                ]
+            )
+        )
+    return faces
+
+
 def _distortion_area_scale(camera: CameraModel, xy: FloatArray) -> float:
     """|det d(distorted)/d(undistorted)| at normalized point xy: local area scale."""
     h = 1e-6
@@ -257,11 +305,15 @@ def expected_body_area_px(
     east_m: float,
     params: GeolocationParams,
     clip_to_image: bool = True,
+    heading_rad: float | None = None,
 ) -> float:
     """Image area (px^2) a whole, unburied lying adult centred on this floor point covers.
 
-    The body is a body_length_m x body_width_m rectangle on the floor; its heading is
-    unknown, so the area is the mean over headings spread across 180 degrees. With
+    The body is a body_length_m x body_width_m x body_height_m box on the floor (from
+    a low camera a lying body shows its side, not only its footprint): the area is
+    its silhouette, the convex hull of its faces. Lying along ``heading_rad`` when
+    given; otherwise the heading is unknown and the area is the mean over headings
+    spread across 180 degrees. With
     ``clip_to_image`` (the default) the outline is clipped to the image, so the area
     is what the frame could show of that body: near the camera a body is larger than
     the frame, and a visibility of mask area / this value then measures burial, not
@@ -278,15 +330,23 @@ def expected_body_area_px(
     k = camera.intrinsics
     bounds = _image_bounds(camera) if clip_to_image else None
     areas = []
-    for i in range(_BODY_HEADINGS):
-        heading_rad = math.pi * i / _BODY_HEADINGS
-        outline = _body_outline(params.body_length_m, params.body_width_m, heading_rad)
-        ned = np.column_stack([outline + np.array([north_m, east_m]), np.full(len(outline), floor)])
-        clipped = _clip_to_view(_camera_frame(camera, pose, ned), bounds)
-        if len(clipped) < 3:
+    headings = (
+        [math.pi * i / _BODY_HEADINGS for i in range(_BODY_HEADINGS)]
+        if heading_rad is None
+        else [heading_rad]
+    )
+    for heading in headings:
+        outline = _body_outline(params.body_length_m, params.body_width_m, heading)
+        ne = outline + np.array([north_m, east_m])
+        points = [
+            clipped[:, :2] / clipped[:, 2:3]
+            for face in _box_faces(ne, floor, floor - params.body_height_m)
+            if len(clipped := _clip_to_view(_camera_frame(camera, pose, face), bounds)) >= 3
+        ]
+        if not points:
             areas.append(0.0)
             continue
-        areas.append(_shoelace(clipped[:, :2] / clipped[:, 2:3]) * k.fx_px * k.fy_px)
+        areas.append(_shoelace(_convex_hull(np.vstack(points))) * k.fx_px * k.fy_px)
     scale = _distortion_area_scale(camera, centre_cam[:2] / centre_cam[2])
     return float(np.mean(areas)) * scale
 

@@ -38,6 +38,7 @@ class GeolocationParams:
     max_pose_extrapolation_s: float = 0.10  # a frame further than this from any pose is refused
     body_length_m: float = 1.7  # a lying adult, for the expected image area
     body_width_m: float = 0.45
+    body_height_m: float = 0.18  # its mean thickness: from a low camera its side shows
 
     def __post_init__(self) -> None:
         _all_finite(self)
@@ -55,6 +56,7 @@ class GeolocationParams:
         )
         _require(self.body_length_m > 0.0, self, "body_length_m", "must be > 0")
         _require(self.body_width_m > 0.0, self, "body_width_m", "must be > 0")
+        _require(self.body_height_m >= 0.0, self, "body_height_m", "must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -138,8 +138,15 @@ class Detection:
     # The detector's own estimate of a whole body's pixels, for images without a
     # camera geometry (photos); with a geometry the floor's size prior is used.
     expected_area_px: float | None = None
+    # The body's axis (NED yaw, feet to head) where the detector can tell it; the
+    # floor's size prior then uses that heading instead of the mean over headings.
+    body_heading_rad: float | None = None
 
     def __post_init__(self) -> None:
+        if self.body_heading_rad is not None and not math.isfinite(self.body_heading_rad):
+            raise ValueError(
+                f"Detection.body_heading_rad must be finite, got {self.body_heading_rad}"
+            )
         if self.expected_area_px is not None and not (
             math.isfinite(self.expected_area_px) and self.expected_area_px > 0.0
         ):

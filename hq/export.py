@@ -4,10 +4,14 @@
   properties: id, urgency, visibility_pct, state, robots, sources, first/last seen
   (ISO 8601 UTC), sigma_m, north_m/east_m/down_m.
 - ``victims.kml``: one Placemark per victim with a style per urgency (Google
-  Earth; QGroundControl shows KML as a map overlay).
-- ``victims.plan``: a QGroundControl plan file (fileType "Plan", version 1) with
-  an empty mission and geofence and the victims as rally points, so QGC draws them
-  on its map and can fly to them.
+  Earth, and any GIS or phone map app a ground team uses).
+- ``victims.csv``: one row per victim for a ground team's list or a spreadsheet
+  (RFC 4180, a header row, UTF-8).
+
+There is deliberately no QGroundControl ``.plan``: uploading a plan to a vehicle
+replaces its mission, geofence and rally points, and rally points are where RTL
+drives the rover. QGC shows the victims live through rescue-hq's SBS-1 feed
+(hq/sbs.py, docs/HQ.md) instead.
 
 Only victims with a latitude/longitude appear in these files: a victim is placed
 on the globe when its robot reported lat/lon, or when the HQ knows an EKF origin
@@ -21,6 +25,8 @@ and renamed over the old one: a reader never sees half a file.
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import os
 import tempfile
@@ -30,12 +36,28 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from fusion.types import GlobalOrigin, Urgency
+from fusion.types import Urgency
 from hq.view import HqVictim
 
 GEOJSON_NAME = "victims.geojson"
 KML_NAME = "victims.kml"
-PLAN_NAME = "victims.plan"
+CSV_NAME = "victims.csv"
+CSV_COLUMNS = (
+    "id",
+    "urgency",
+    "state",
+    "lat_deg",
+    "lon_deg",
+    "alt_m",
+    "sigma_m",
+    "visibility_pct",
+    "robots",
+    "sources",
+    "first_seen",
+    "last_seen",
+    "north_m",
+    "east_m",
+)
 
 # KML colours are aabbggrr.
 _KML_COLOURS = {
@@ -43,11 +65,6 @@ _KML_COLOURS = {
     Urgency.MEDIUM: "ff00a5ff",  # orange
     Urgency.LIGHT: "ff00c000",  # green
 }
-# QGC plan defaults: ArduPilot (MAV_AUTOPILOT_ARDUPILOTMEGA) ground rover (MAV_TYPE_GROUND_ROVER).
-_FIRMWARE_ARDUPILOT = 3
-_VEHICLE_GROUND_ROVER = 10
-_ROVER_CRUISE_SPEED_M_S = 1.0
-_HOVER_SPEED_M_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -128,34 +145,33 @@ def kml(victims: list[HqVictim]) -> bytes:
     return bytes(ET.tostring(root, encoding="utf-8", xml_declaration=True))
 
 
-def plan(victims: list[HqVictim], origin: GlobalOrigin | None) -> dict[str, Any]:
-    placed = [v for v in victims if v.has_global]
-    home: list[float | None]
-    if origin is not None:
-        home = [origin.lat_deg, origin.lon_deg, origin.alt_m]
-    elif placed:
-        home = [placed[0].lat_deg, placed[0].lon_deg, placed[0].alt_m]
-    else:
-        home = [0.0, 0.0, 0.0]
-    return {
-        "fileType": "Plan",
-        "version": 1,
-        "groundStation": "QGroundControl",
-        "mission": {
-            "version": 2,
-            "firmwareType": _FIRMWARE_ARDUPILOT,
-            "vehicleType": _VEHICLE_GROUND_ROVER,
-            "cruiseSpeed": _ROVER_CRUISE_SPEED_M_S,
-            "hoverSpeed": _HOVER_SPEED_M_S,
-            "plannedHomePosition": home,
-            "items": [],
-        },
-        "geoFence": {"version": 2, "polygons": [], "circles": []},
-        "rallyPoints": {
-            "version": 2,
-            "points": [[v.lat_deg, v.lon_deg, v.alt_m] for v in placed],
-        },
-    }
+def csv_text(victims: list[HqVictim]) -> bytes:
+    """Placed victims, most urgent first; sources as ``robot:victim`` separated by spaces."""
+    out = io.StringIO(newline="")
+    writer = csv.writer(out, lineterminator="\r\n")
+    writer.writerow(CSV_COLUMNS)
+    for v in victims:
+        if not v.has_global:
+            continue
+        writer.writerow(
+            [
+                v.hq_id,
+                v.urgency.name,
+                v.state.name,
+                f"{v.lat_deg:.8f}",
+                f"{v.lon_deg:.8f}",
+                f"{v.alt_m:.2f}",
+                f"{v.sigma_m:.2f}",
+                f"{v.visibility_pct:.0f}",
+                " ".join(str(r) for r in v.robots),
+                " ".join(f"{r}:{i}" for r, i in v.sources),
+                _iso(v.first_seen_unix_s),
+                _iso(v.last_seen_unix_s),
+                f"{v.north_m:.2f}",
+                f"{v.east_m:.2f}",
+            ]
+        )
+    return out.getvalue().encode("utf-8")
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -172,13 +188,13 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def export_all(victims: list[HqVictim], out_dir: Path, origin: GlobalOrigin | None) -> ExportResult:
+def export_all(victims: list[HqVictim], out_dir: Path) -> ExportResult:
     """Write the three files into ``out_dir`` (created if missing); OSError on failure."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {
         GEOJSON_NAME: json.dumps(geojson(victims), indent=1).encode(),
         KML_NAME: kml(victims),
-        PLAN_NAME: json.dumps(plan(victims, origin), indent=4).encode(),
+        CSV_NAME: csv_text(victims),
     }
     for name, data in files.items():
         write_atomic(out_dir / name, data)

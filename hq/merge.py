@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fusion.geodesy import geodetic_to_ned, ned_to_geodetic
-from fusion.types import Cov2, GlobalOrigin
+from fusion.types import Cov2, GlobalOrigin, VictimReport
 
 CHI2_GATE_2DOF_99 = 9.2103  # scipy.stats.chi2.ppf(0.99, df=2)
 
@@ -161,3 +161,35 @@ def assign(
         if d2 is not None and d2 <= gate and (best is None or d2 < best[0]):
             best = (d2, hq_id)
     return best[1] if best is not None else None
+
+
+@dataclass(frozen=True)
+class Origins:
+    """EKF origins the HQ knows: per robot (GPS_GLOBAL_ORIGIN) and the operator's default."""
+
+    per_robot: dict[int, GlobalOrigin]
+    default: GlobalOrigin | None
+
+    def for_robot(self, sysid: int) -> GlobalOrigin | None:
+        return self.per_robot.get(sysid, self.default)
+
+
+def geo_of(report: VictimReport, origins: Origins) -> Geo | None:
+    """A report's (lat, lon, alt): as reported, else from its robot's EKF origin, else None."""
+    if report.lat_deg is not None and report.lon_deg is not None and report.alt_m is not None:
+        return (report.lat_deg, report.lon_deg, report.alt_m)
+    origin = origins.for_robot(report.robot_sysid)
+    if origin is None:
+        return None
+    return ned_to_geodetic(origin, report.north_m, report.east_m, report.down_m)
+
+
+def placed(report: VictimReport, origins: Origins) -> Placed:
+    return Placed(
+        report.robot_sysid,
+        report.victim_id,
+        report.north_m,
+        report.east_m,
+        report.cov_ne_m2,
+        geo_of(report, origins),
+    )

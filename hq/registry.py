@@ -11,32 +11,52 @@ Tables:
 A batch of reports is written in one transaction; the caller acknowledges only
 after ``store_reports`` returned, i.e. after the commit reached the disk: nothing
 acknowledged is ever lost. A report is a duplicate when (robot, report_seq,
-victim_id, report time) was stored before. An older report (by report time, then
-report_seq) than the one a source holds is stored but does not change the source.
+victim_id, report time) was stored before. An older report (by report_seq, then
+report time) than the one a source holds is stored but does not change the source.
 
 Errors: ``RegistryError`` (cannot open: corrupt, not SQLite, locked, foreign schema)
-names the file; ``RegistryBusy`` (a write could not get the lock in time).
+names the file; ``RegistryBusy`` (a write could not get the lock in time);
+``RegistryFull`` (the disk is full). A failed write leaves nothing of itself behind
+and the registry usable: the next write, once space returns, works.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sqlite3
 import time
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass
-from enum import Enum
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict
 from pathlib import Path
 
-from fusion.geodesy import ned_to_geodetic
-from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
-from hq import merge
-from hq.merge import Geo, Placed
+from fusion.types import GlobalOrigin, TrackState
+from hq import epoch, merge
+from hq.merge import Origins, Placed, placed
+from hq.records import (
+    Action,
+    BadRecord,
+    IncomingReport,
+    OperatorAction,
+    Robot,
+    RobotStatus,
+    Source,
+    StoreResult,
+    check_origin,
+    report_from_payload,
+    report_payload,
+)
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: actions.ack_result
+_MIGRATIONS = {1: ("ALTER TABLE actions ADD COLUMN ack_result INTEGER",)}  # from version: SQL
+# action_seq never counts below the seconds since this instant (see _seed_action_seq).
+_ACTION_SEQ_EPOCH_UNIX_S = 1_735_689_600  # 2025-01-01T00:00:00Z
+_ACTION_SEQ_TICKS_PER_S = 4  # the clock floor counts quarter seconds: uint32 lasts until 2059
+_MAX_ACTION_SEQ = 0xFFFFFFFF  # RESCUE_OPERATOR_ACTION.action_seq is a uint32
+_ACTION_SEQ_HEADROOM = 1 << 24  # numbers left above the highest clock floor
 _BUSY_TIMEOUT_MS = 1500  # a concurrent `rescue-hq mark` holds the lock for milliseconds
 
 _SCHEMA = """
@@ -68,7 +88,7 @@ CREATE TABLE IF NOT EXISTS actions (
     action_seq INTEGER PRIMARY KEY AUTOINCREMENT,
     robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL, action INTEGER NOT NULL,
     created_unix_s REAL NOT NULL, sent_count INTEGER NOT NULL DEFAULT 0,
-    last_sent_unix_s REAL, acked_unix_s REAL
+    last_sent_unix_s REAL, acked_unix_s REAL, ack_result INTEGER
 );
 """
 
@@ -81,79 +101,12 @@ class RegistryBusy(RegistryError):
     """A write did not get the database lock in time; nothing was stored."""
 
 
-class StoreResult(Enum):
-    ACCEPTED = "accepted"  # new, stored, and the newest state of its victim
-    STALE = "stale"  # new and stored, but older than what the victim already holds
-    DUPLICATE = "duplicate"  # stored before
+class RegistryCorrupt(RegistryError):
+    """The file is damaged (not SQLite, malformed, or emptied); `run` moves it aside."""
 
 
-class OperatorAction(Enum):
-    """Values match RESCUE_OPERATOR_ACTION_TYPE."""
-
-    RESCUED = 1
-    FALSE_ALARM = 2
-
-
-@dataclass(frozen=True)
-class IncomingReport:
-    report: VictimReport
-    report_seq: int
-    report_time_usec: int
-    merged_into_id: int
-    src_compid: int
-    received_unix_s: float
-
-
-@dataclass(frozen=True)
-class Action:
-    action_seq: int
-    robot_sysid: int
-    victim_id: int
-    action: OperatorAction
-    created_unix_s: float
-    sent_count: int
-    acked_unix_s: float | None
-
-
-@dataclass(frozen=True)
-class Source:
-    hq_id: int
-    report: VictimReport
-    report_seq: int
-    merged_into_id: int
-    updated_unix_s: float
-
-
-@dataclass(frozen=True)
-class Robot:
-    sysid: int
-    compid: int
-    first_heard_unix_s: float
-    last_heard_unix_s: float
-    status: dict[str, float] | None
-    status_unix_s: float | None
-    origin: GlobalOrigin | None
-
-
-def _payload(report: VictimReport) -> str:
-    d = asdict(report)
-    d["state"] = int(report.state)
-    d["urgency"] = int(report.urgency)
-    return json.dumps(d)
-
-
-def _report(payload: str) -> VictimReport:
-    d = json.loads(payload)
-    d["state"] = TrackState(d["state"])
-    d["urgency"] = Urgency(d["urgency"])
-    (a, b), (c, e) = d["cov_ne_m2"]
-    d["cov_ne_m2"] = ((a, b), (c, e))
-    return VictimReport(**d)
-
-
-def _is_lock_error(exc: sqlite3.OperationalError) -> bool:
-    text = str(exc).lower()
-    return "locked" in text or "busy" in text
+class RegistryFull(RegistryError):
+    """The disk is full; nothing of the write was stored."""
 
 
 class Registry:
@@ -163,6 +116,10 @@ class Registry:
         self.path = path
         self._cache: dict[tuple[int, int], tuple[int, Placed]] | None = None
         self._origins_cache: Origins | None = None
+        self.bad_rows: set[str] = set()  # unusable rows found while reading, said once each
+        self.epoch = 1
+        if path.is_file() and path.stat().st_size == 0:
+            raise RegistryCorrupt(f"database {path} is empty (0 bytes): its contents were lost")
         try:
             self._db = sqlite3.connect(
                 str(path), isolation_level=None, timeout=busy_timeout_ms / 1000.0
@@ -173,20 +130,26 @@ class Registry:
             self._setup()
         except sqlite3.DatabaseError as exc:
             self._db.close()
-            raise RegistryError(f"database {path}: {_describe(exc)}") from None
+            code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+            damaged = code in (sqlite3.SQLITE_CORRUPT, sqlite3.SQLITE_NOTADB)
+            kind = RegistryCorrupt if damaged else RegistryError
+            raise kind(f"database {path}: {_describe(exc)}") from None
         except RegistryError:
             self._db.close()
             raise
 
     def _setup(self) -> None:
         db = self._db
+        # Text that is not UTF-8 (a damaged file) reads as U+FFFD and then fails its
+        # check, instead of raising out of a whole query.
+        db.text_factory = lambda raw: raw.decode("utf-8", "replace")
         db.execute("PRAGMA journal_mode=WAL")
         # FULL: a commit is on the disk before we acknowledge, even across a power cut.
         db.execute("PRAGMA synchronous=FULL")
         db.execute("PRAGMA foreign_keys=ON")
         row = db.execute("PRAGMA quick_check").fetchone()
         if row is None or row[0] != "ok":
-            raise RegistryError(f"database {self.path}: integrity check failed: {row}")
+            raise RegistryCorrupt(f"database {self.path}: integrity check failed: {row}")
         tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
         if tables and "meta" not in tables:
             raise RegistryError(
@@ -200,15 +163,64 @@ class Registry:
             version = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
             if version is None:
                 db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+                self._start_epoch(epoch.last_epoch(self.path) + 1)
+            elif int(version[0]) in _MIGRATIONS:
+                for old in range(int(version[0]), SCHEMA_VERSION):
+                    for statement in _MIGRATIONS[old]:
+                        db.execute(statement)
+                db.execute(
+                    "UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),)
+                )
             elif int(version[0]) != SCHEMA_VERSION:
                 raise RegistryError(
                     f"database {self.path}: schema version {version[0]}, "
                     f"this rescue-hq knows {SCHEMA_VERSION}"
                 )
+            row = db.execute("SELECT value FROM meta WHERE key='epoch'").fetchone()
+            self.epoch = 1 if row is None else int(row[0])  # no epoch yet: an older registry
+            epoch.record(self.path, epoch=self.epoch)  # a lost epoch file is written again
             db.execute("COMMIT")
+        except epoch.EpochError as exc:
+            self._rollback()
+            raise RegistryError(str(exc)) from None
         except BaseException:
-            db.execute("ROLLBACK")
+            self._rollback()
             raise
+
+    def _start_epoch(self, number: int) -> None:
+        """A new registry: HQ victim IDs from epoch ``number``'s first ID on.
+
+        The epoch file is written before this transaction commits, so an epoch
+        whose IDs were handed out is always on record.
+        """
+        self._db.execute("INSERT INTO meta VALUES ('epoch', ?)", (str(number),))
+        self._db.execute(
+            "INSERT INTO sqlite_sequence (name, seq) VALUES ('hq_victims', ?)",
+            (epoch.first_id(number) - 1,),
+        )
+        epoch.record(self.path, epoch=number)
+
+    def _seed_action_seq(self) -> None:
+        """Make the next action_seq above every one given out before.
+
+        A robot drops an action_seq it has seen from this HQ as a duplicate. Within
+        one registry AUTOINCREMENT never goes back. At the same path, the epoch file
+        records the highest number given out (hq.epoch), which survives a lost or
+        corrupt registry. Across paths (another --db), the HQ's clock in quarter
+        seconds since 2025 keeps numbers apart, unless the other registry numbered
+        faster than four actions a second, or the clock went back.
+        """
+        ticks = int((time.time() - _ACTION_SEQ_EPOCH_UNIX_S) * _ACTION_SEQ_TICKS_PER_S)
+        # A clock gone wild is ignored beyond the headroom kept for counting on.
+        floor = max(0, min(ticks, _MAX_ACTION_SEQ - _ACTION_SEQ_HEADROOM))
+        floor = max(floor, epoch.read(self.path).action_seq)
+        row = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name='actions'").fetchone()
+        if row is None:
+            self._db.execute(
+                "INSERT INTO sqlite_sequence (name, seq) VALUES ('actions', ?)", (floor,)
+            )
+        elif int(row[0]) < floor:
+            self._db.execute("UPDATE sqlite_sequence SET seq=? WHERE name='actions'", (floor,))
 
     def close(self) -> None:
         db = getattr(self, "_db", None)
@@ -224,49 +236,60 @@ class Registry:
 
     # -- writing ---------------------------------------------------------------
 
-    def _begin(self) -> None:
+    @contextlib.contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction: committed when the block ends, rolled back on any error.
+
+        SQLite errors become RegistryBusy (locked), RegistryFull (disk full) or
+        RegistryError; nothing of the block is stored then. SQLite may already have
+        rolled back by itself (it does on SQLITE_FULL), so the rollback is only
+        attempted inside a transaction.
+        """
         try:
             self._db.execute("BEGIN IMMEDIATE")
-        except sqlite3.OperationalError as exc:
-            if _is_lock_error(exc):
-                raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
-            raise RegistryError(f"database {self.path}: {exc}") from None
-
-    def _commit(self) -> None:
+        except sqlite3.Error as exc:
+            raise self._failure(exc) from None
         try:
+            yield self._db
             self._db.execute("COMMIT")
-        except sqlite3.OperationalError as exc:
+        except sqlite3.Error as exc:
+            self._rollback()
+            raise self._failure(exc) from None
+        except BaseException:
+            self._rollback()
+            raise
+
+    def _rollback(self) -> None:
+        if not self._db.in_transaction:
+            return
+        try:
             self._db.execute("ROLLBACK")
-            if _is_lock_error(exc):
-                raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
-            raise RegistryError(f"database {self.path}: {exc}") from None
+        except sqlite3.Error as exc:  # nothing more to undo; the connection stays usable
+            log.warning("database %s: rollback failed: %s", self.path, exc)
+
+    def _failure(self, exc: sqlite3.Error) -> RegistryError:
+        code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+        text = str(exc)
+        if code == sqlite3.SQLITE_FULL or "disk is full" in text:
+            return RegistryFull(f"database {self.path}: the disk is full ({text})")
+        if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED) or "locked" in text:
+            return RegistryBusy(f"database {self.path} is locked: {text}")
+        return RegistryError(f"database {self.path}: {text}")
 
     def store_reports(self, batch: Sequence[IncomingReport]) -> list[StoreResult]:
         """Store a batch durably (one transaction); the result of each, in order.
 
-        Raises RegistryBusy (nothing stored) when the lock is not free in time.
+        Raises RegistryBusy (the lock was not free in time) or RegistryFull (the
+        disk is full); nothing of the batch is stored then.
         """
         if not batch:
             return []
-        self._begin()
         try:
-            results = [self._store_one(item) for item in batch]
-        except sqlite3.OperationalError as exc:
-            self._forget_cache()
-            self._db.execute("ROLLBACK")
-            if _is_lock_error(exc):
-                raise RegistryBusy(f"database {self.path} is locked: {exc}") from None
-            raise RegistryError(f"database {self.path}: {exc}") from None
+            with self._write():
+                return [self._store_one(item) for item in batch]
         except BaseException:
-            self._forget_cache()
-            self._db.execute("ROLLBACK")
+            self._forget_cache()  # it may hold sources of the rolled-back batch
             raise
-        try:
-            self._commit()
-        except RegistryError:
-            self._forget_cache()
-            raise
-        return results
 
     def _store_one(self, item: IncomingReport) -> StoreResult:
         r = item.report
@@ -282,7 +305,7 @@ class Registry:
                 item.report_time_usec,
                 item.src_compid,
                 item.received_unix_s,
-                _payload(r),
+                report_payload(r),
             ),
         )
         if cur.rowcount == 0:
@@ -293,7 +316,9 @@ class Registry:
             " WHERE robot_sysid=? AND victim_id=?",
             (r.robot_sysid, r.victim_id),
         ).fetchone()
-        if held is not None and (item.report_time_usec, item.report_seq) <= (held[0], held[1]):
+        # Newer means a higher report_seq (the robot's own monotonic count); its wall
+        # clock only breaks ties, so a clock step cannot reorder a robot's reports.
+        if held is not None and (item.report_seq, item.report_time_usec) <= (held[1], held[0]):
             return StoreResult.STALE
         hq_id = self._place(item, None if held is None else int(held[2]))
         db.execute(
@@ -308,7 +333,7 @@ class Registry:
                 item.report_time_usec,
                 item.merged_into_id,
                 item.received_unix_s,
-                _payload(r),
+                report_payload(r),
             ),
         )
         db.execute("UPDATE reports SET applied=1 WHERE id=?", (report_row,))
@@ -373,6 +398,10 @@ class Registry:
             "INSERT INTO hq_victims (created_unix_s) VALUES (?)", (item.received_unix_s,)
         )
         assert cur.lastrowid is not None  # sqlite3 sets it after an INSERT
+        if cur.lastrowid >= epoch.first_id(self.epoch + 1):
+            raise RegistryError(
+                f"database {self.path}: HQ victim IDs of epoch {self.epoch} used up"
+            )
         return int(cur.lastrowid)
 
     def _touch_robot(self, sysid: int, compid: int, now_unix_s: float) -> None:
@@ -388,105 +417,104 @@ class Registry:
                 (sysid, compid, now_unix_s, now_unix_s),
             )
 
-    def store_status(
-        self, sysid: int, compid: int, status: dict[str, float], now_unix_s: float
-    ) -> None:
-        self._begin()
-        try:
+    def store_status(self, sysid: int, compid: int, status: RobotStatus, now_unix_s: float) -> None:
+        with self._write() as db:
             self._touch_robot(sysid, compid, now_unix_s)
-            self._db.execute(
+            db.execute(
                 "UPDATE robots SET status=?, status_unix_s=? WHERE sysid=?",
-                (json.dumps(status), now_unix_s, sysid),
+                (status.to_json(), now_unix_s, sysid),
             )
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
 
     def set_robot_origin(self, sysid: int, compid: int, origin: GlobalOrigin) -> None:
         self._forget_cache()
-        self._begin()
-        try:
+        with self._write() as db:
             self._touch_robot(sysid, compid, time.time())
-            self._db.execute(
+            db.execute(
                 "UPDATE robots SET origin_lat_deg=?, origin_lon_deg=?, origin_alt_m=?"
                 " WHERE sysid=?",
                 (origin.lat_deg, origin.lon_deg, origin.alt_m, sysid),
             )
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
 
     def set_default_origin(self, origin: GlobalOrigin | None) -> None:
         value = None if origin is None else json.dumps(asdict(origin))
         self._forget_cache()
-        self._begin()
-        if value is None:
-            self._db.execute("DELETE FROM meta WHERE key='default_origin'")
-        else:
-            self._db.execute("INSERT OR REPLACE INTO meta VALUES ('default_origin', ?)", (value,))
-        self._commit()
+        with self._write() as db:
+            if value is None:
+                db.execute("DELETE FROM meta WHERE key='default_origin'")
+            else:
+                db.execute("INSERT OR REPLACE INTO meta VALUES ('default_origin', ?)", (value,))
 
     def add_action(self, robot_sysid: int, victim_id: int, action: OperatorAction) -> int:
         """Record an operator action; its action_seq. KeyError for an unknown victim."""
-        self._begin()
-        try:
-            known = self._db.execute(
+        with self._write() as db:
+            known = db.execute(
                 "SELECT 1 FROM sources WHERE robot_sysid=? AND victim_id=?",
                 (robot_sysid, victim_id),
             ).fetchone()
             if known is None:
                 raise KeyError(f"robot {robot_sysid} has reported no victim {victim_id}")
-            cur = self._db.execute(
+            self._seed_action_seq()
+            cur = db.execute(
                 "INSERT INTO actions (robot_sysid, victim_id, action, created_unix_s)"
                 " VALUES (?, ?, ?, ?)",
                 (robot_sysid, victim_id, action.value, time.time()),
             )
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
-        assert cur.lastrowid is not None
+            if cur.lastrowid is None or cur.lastrowid > _MAX_ACTION_SEQ:
+                raise RegistryError(f"database {self.path}: action numbers exhausted")
+            try:  # on record before the action exists (this transaction commits)
+                epoch.record(self.path, action_seq=cur.lastrowid)
+            except epoch.EpochError as exc:
+                raise RegistryError(str(exc)) from None
         return int(cur.lastrowid)
 
     def note_action_sent(self, action_seq: int, now_unix_s: float) -> None:
-        self._simple_write(
-            "UPDATE actions SET sent_count=sent_count+1, last_sent_unix_s=? WHERE action_seq=?",
-            (now_unix_s, action_seq),
-        )
+        with self._write() as db:
+            db.execute(
+                "UPDATE actions SET sent_count=sent_count+1, last_sent_unix_s=? WHERE action_seq=?",
+                (now_unix_s, action_seq),
+            )
 
-    def ack_action(self, action_seq: int, now_unix_s: float) -> bool:
-        """Mark an action acknowledged; False when it was unknown or already acked."""
-        self._begin()
-        cur = self._db.execute(
-            "UPDATE actions SET acked_unix_s=? WHERE action_seq=? AND acked_unix_s IS NULL",
-            (now_unix_s, action_seq),
-        )
-        self._commit()
+    def ack_action(self, action_seq: int, now_unix_s: float, result: int) -> bool:
+        """Record the robot's answer to an action; False when unknown or already answered."""
+        with self._write() as db:
+            cur = db.execute(
+                "UPDATE actions SET acked_unix_s=?, ack_result=? WHERE action_seq=?"
+                " AND acked_unix_s IS NULL",
+                (now_unix_s, result, action_seq),
+            )
         return cur.rowcount == 1
-
-    def _simple_write(self, sql: str, args: tuple[object, ...]) -> None:
-        self._begin()
-        try:
-            self._db.execute(sql, args)
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._commit()
-
-    # -- reading ---------------------------------------------------------------
 
     def data_version(self) -> int:
         """Changes whenever another connection commits (cheap; see PRAGMA data_version)."""
         return int(self._db.execute("PRAGMA data_version").fetchone()[0])
 
     def sources(self) -> list[Source]:
+        """Every usable source; a row that does not check (see hq.records) is skipped, said once."""
         rows = self._db.execute(
-            "SELECT hq_id, payload, report_seq, merged_into_id, updated_unix_s FROM sources"
-            " ORDER BY hq_id, robot_sysid, victim_id"
+            "SELECT robot_sysid, victim_id, hq_id, payload, report_seq, merged_into_id,"
+            " updated_unix_s FROM sources ORDER BY hq_id, robot_sysid, victim_id"
         ).fetchall()
-        return [Source(int(h), _report(p), int(s), int(m), float(u)) for h, p, s, m, u in rows]
+        out = []
+        for robot, victim, h, p, s, m, u in rows:
+            try:
+                out.append(Source(int(h), report_from_payload(p), int(s), int(m), float(u)))
+            except (BadRecord, TypeError, ValueError) as exc:
+                self._bad_row(f"sources robot {robot} victim {victim}", exc)
+        return out
+
+    def _bad_row(self, where: str, exc: Exception) -> None:
+        """Say once per row that it is unusable and count it; the row stays in the file."""
+        if where not in self.bad_rows:
+            self.bad_rows.add(where)
+            log.error("database %s: %s is unusable and ignored: %s", self.path, where, exc)
+
+    def first_received_unix_s(self) -> dict[tuple[int, int], float]:
+        """When the first report of each (robot sysid, robot's victim id) arrived."""
+        rows = self._db.execute(
+            "SELECT robot_sysid, victim_id, MIN(received_unix_s) FROM reports"
+            " GROUP BY robot_sysid, victim_id"
+        ).fetchall()
+        return {(int(r), int(v)): float(t) for r, v, t in rows}
 
     def report_count(self) -> int:
         return int(self._db.execute("SELECT COUNT(*) FROM reports").fetchone()[0])
@@ -494,15 +522,31 @@ class Registry:
     def actions(self, *, pending_only: bool = False) -> list[Action]:
         sql = (
             "SELECT action_seq, robot_sysid, victim_id, action, created_unix_s, sent_count,"
-            " acked_unix_s FROM actions"
+            " acked_unix_s, ack_result FROM actions"
         )
         if pending_only:
             sql += " WHERE acked_unix_s IS NULL"
         rows = self._db.execute(sql + " ORDER BY action_seq").fetchall()
-        return [
-            Action(int(a), int(r), int(v), OperatorAction(int(k)), float(c), int(n), ack)
-            for a, r, v, k, c, n, ack in rows
-        ]
+        out = []
+        for a, r, v, k, c, n, ack, result in rows:
+            try:
+                acked = None if ack is None else float(ack)
+                answer = None if result is None else int(result)
+                out.append(
+                    Action(
+                        int(a),
+                        int(r),
+                        int(v),
+                        OperatorAction(int(k)),
+                        float(c),
+                        int(n),
+                        acked,
+                        answer,
+                    )
+                )
+            except (TypeError, ValueError) as exc:
+                self._bad_row(f"action {a}", exc)
+        return out
 
     def robots(self) -> list[Robot]:
         rows = self._db.execute(
@@ -511,50 +555,45 @@ class Registry:
         ).fetchall()
         out = []
         for sysid, compid, first, last, status, status_t, lat, lon, alt in rows:
-            origin = GlobalOrigin(lat, lon, alt) if lat is not None else None
-            parsed = json.loads(status) if status else None
-            out.append(Robot(sysid, compid, first, last, parsed, status_t, origin))
+            origin = parsed = None
+            try:
+                if lat is not None:
+                    origin = check_origin(GlobalOrigin(float(lat), float(lon), float(alt)))
+            except (TypeError, ValueError) as exc:
+                self._bad_row(f"origin of robot {sysid}", exc)
+            try:
+                parsed = RobotStatus.from_json(status) if status else None
+            except BadRecord as exc:
+                self._bad_row(f"status of robot {sysid}", exc)
+            try:
+                out.append(
+                    Robot(
+                        int(sysid),
+                        int(compid),
+                        float(first),
+                        float(last),
+                        parsed,
+                        None if status_t is None else float(status_t),
+                        origin,
+                    )
+                )
+            except (TypeError, ValueError) as exc:
+                self._bad_row(f"robot {sysid}", exc)
         return out
 
     def default_origin(self) -> GlobalOrigin | None:
         row = self._db.execute("SELECT value FROM meta WHERE key='default_origin'").fetchone()
-        return None if row is None else GlobalOrigin(**json.loads(row[0]))
+        if row is None:
+            return None
+        try:
+            return check_origin(GlobalOrigin(**json.loads(row[0])))
+        except (TypeError, ValueError) as exc:
+            self._bad_row("the default origin", exc)
+            return None
 
     def origins(self) -> Origins:
         per_robot = {r.sysid: r.origin for r in self.robots() if r.origin is not None}
         return Origins(per_robot, self.default_origin())
-
-
-@dataclass(frozen=True)
-class Origins:
-    """EKF origins the HQ knows: per robot (GPS_GLOBAL_ORIGIN) and the operator's default."""
-
-    per_robot: dict[int, GlobalOrigin]
-    default: GlobalOrigin | None
-
-    def for_robot(self, sysid: int) -> GlobalOrigin | None:
-        return self.per_robot.get(sysid, self.default)
-
-
-def geo_of(report: VictimReport, origins: Origins) -> Geo | None:
-    """A report's (lat, lon, alt): as reported, else from its robot's EKF origin, else None."""
-    if report.lat_deg is not None and report.lon_deg is not None and report.alt_m is not None:
-        return (report.lat_deg, report.lon_deg, report.alt_m)
-    origin = origins.for_robot(report.robot_sysid)
-    if origin is None:
-        return None
-    return ned_to_geodetic(origin, report.north_m, report.east_m, report.down_m)
-
-
-def placed(report: VictimReport, origins: Origins) -> Placed:
-    return Placed(
-        report.robot_sysid,
-        report.victim_id,
-        report.north_m,
-        report.east_m,
-        report.cov_ne_m2,
-        geo_of(report, origins),
-    )
 
 
 def _describe(exc: sqlite3.DatabaseError) -> str:

@@ -79,6 +79,14 @@ class SimRobot:
             tunnel=False,
         )
 
+    def position(self, north_m: float, east_m: float) -> None:
+        """LOCAL_POSITION_NED as the robot's autopilot streams it (sent direct, not tunnelled)."""
+        boot_ms = int(time.monotonic() * 1000) & 0xFFFFFFFF
+        self.send(
+            self.m.MAVLink_local_position_ned_message(boot_ms, north_m, east_m, 0.0, 0.0, 0.0, 0.0),
+            tunnel=False,
+        )
+
     def status(self, *, confirmed: int = 0, flags: int = 0b111) -> None:
         self.send(self.m.MAVLink_rescue_status_message(10, 9.5, 0.0, 40.0, flags, confirmed, 0, 0))
 

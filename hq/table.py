@@ -1,7 +1,8 @@
 """The live terminal table: every victim and robot, readable at a glance.
 
-Most urgent first; urgency in colour (CRITICAL red, MEDIUM orange, LIGHT green)
-when the output is a terminal, plain text otherwise. Rescued and false-alarm
+Most urgent first. VISIBLE is the share of the body a robot sees, in percent (of
+several robots, the lowest: the most buried view); urgency in colour (CRITICAL red,
+MEDIUM orange, LIGHT green) when the output is a terminal, plain text otherwise. Rescued and false-alarm
 victims are dimmed. ``ACK`` counts operator actions still waiting for the robot's
 acknowledgement. Rendering is pure (text in, text out); the app decides when to
 redraw (at most 2 Hz).
@@ -13,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from fusion.types import TrackState, Urgency
-from hq.registry import Robot
+from hq.records import Robot
 from hq.view import HqVictim
 
 _RESET = "\x1b[0m"
@@ -41,6 +42,7 @@ class Header:
     links: Sequence[str]
     reports_stored: int
     signing: bool
+    warning: str | None = None  # e.g. the disk is full: shown in red under the title
 
 
 def age(seconds: float) -> str:
@@ -65,7 +67,7 @@ def _paint(text: str, code: str, colour: bool) -> str:
 
 def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) -> list[str]:
     head = (
-        f"{'ID':>4} {'URGENCY':<9}{'VIS%':>5} {'STATE':<17} {'ROBOT:VICTIM':<16}"
+        f"{'ID':>4} {'URGENCY':<9}{'VISIBLE':>7} {'STATE':<17} {'ROBOT:VICTIM':<16}"
         f"{'POSITION':<24}{'±m':>5} {'SEEN':>7} {'ACK':>3}"
     )
     rows = [_paint(head, _BOLD, colour)]
@@ -75,7 +77,7 @@ def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) ->
         done = v.state in (TrackState.RESCUED, TrackState.FALSE_ALARM)
         state = v.state.name + ("?" if v.actions_pending else "")
         line_rest = (
-            f"{v.visibility_pct:>5.0f} {state:<17} {srcs:<16}{_position(v):<24}"
+            f"{f'{v.visibility_pct:.0f}%':>7} {state:<17} {srcs:<16}{_position(v):<24}"
             f"{v.sigma_m:>5.1f} {age(now_unix_s - v.last_seen_unix_s):>7} "
             f"{v.actions_pending or '':>3}"
         )
@@ -98,17 +100,17 @@ def robot_rows(robots: Sequence[Robot], now_unix_s: float, colour: bool) -> list
     for r in robots:
         silent = now_unix_s - r.last_heard_unix_s > _ROBOT_SILENT_S
         heard = age(now_unix_s - r.last_heard_unix_s)
-        st = r.status or {}
-        flags = int(st.get("flags", 0))
-        health = " ".join(
-            name if flags & bit else f"-{name.lower()}" for bit, name in _STATUS_FLAGS
-        )
-        if not st:
-            health = "(no RESCUE_STATUS yet)"
-        line = (
-            f"{r.sysid:>5} {heard:>7} {st.get('fps', 0.0):>5.1f} "
-            f"{int(st.get('victims_confirmed', 0)):>4} {int(st.get('outbox_pending', 0)):>6}  {health}"
-        )
+        st = r.status
+        if st is None:
+            line = f"{r.sysid:>5} {heard:>7} {'':>5} {'':>4} {'':>6}  (no RESCUE_STATUS yet)"
+        else:
+            health = " ".join(
+                name if st.flags & bit else f"-{name.lower()}" for bit, name in _STATUS_FLAGS
+            )
+            line = (
+                f"{r.sysid:>5} {heard:>7} {st.fps:>5.1f} "
+                f"{st.victims_confirmed:>4} {st.outbox_pending:>6}  {health}"
+            )
         rows.append(_paint(line + "  SILENT", "\x1b[33m", colour) if silent else line)
     if not robots:
         rows.append("   (no robot heard yet)")
@@ -137,7 +139,10 @@ def render(
         f" ({critical} critical open)  reports {header.reports_stored}"
         f"  waiting for ack {waiting}"
     )
-    lines = [_paint(title, _BOLD, colour), ""]
+    lines = [_paint(title, _BOLD, colour)]
+    if header.warning:
+        lines.append(_paint(header.warning, _URGENCY_COLOUR[Urgency.CRITICAL], colour))
+    lines.append("")
     lines += victim_rows(victims, now_unix_s, colour)
     lines.append("")
     lines += robot_rows(robots, now_unix_s, colour)

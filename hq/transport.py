@@ -99,6 +99,9 @@ class UdpHubLink:
 
     def _remember(self, peer: tuple[str, int]) -> None:
         now = time.monotonic()
+        if peer not in self._peers:  # forget peers silent too long before counting
+            for gone in [a for a, t in self._peers.items() if now - t > self._peer_timeout_s]:
+                del self._peers[gone]
         if peer not in self._peers and len(self._peers) >= _MAX_PEERS:
             oldest = min(self._peers, key=self._peers.__getitem__)
             del self._peers[oldest]

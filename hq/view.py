@@ -7,7 +7,7 @@ robot itself merged into another of its victims (state MERGED) are folded into
 that victim and not shown on their own.
 
 State, in order of precedence: an operator action (acknowledged or still being
-sent) or a robot's RESCUED / FALSE_ALARM, then CONFIRMED, NOT_SEEN_RECENTLY,
+sent; not one the robot REJECTED) or a robot's RESCUED / FALSE_ALARM, then CONFIRMED, NOT_SEEN_RECENTLY,
 TENTATIVE.
 """
 
@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 from fusion.types import Cov2, TrackState, Urgency
 from hq import merge
-from hq.registry import Action, OperatorAction, Origins, Registry, Source, placed
+from hq.merge import Origins, placed
+from hq.records import Action, OperatorAction, Source
+from hq.registry import Registry
 
 _STATE_RANK = {
     TrackState.RESCUED: 5,
@@ -30,6 +32,7 @@ _STATE_RANK = {
 _ACTION_STATE = {
     OperatorAction.RESCUED: TrackState.RESCUED,
     OperatorAction.FALSE_ALARM: TrackState.FALSE_ALARM,
+    OperatorAction.CONFIRMED: TrackState.CONFIRMED,
 }
 
 
@@ -69,8 +72,9 @@ def _sigma_m(cov: Cov2) -> float:
 
 
 def _state(members: list[Source], actions: list[Action]) -> TrackState:
-    if actions:
-        latest = max(actions, key=lambda a: a.action_seq)
+    applied = [a for a in actions if not a.rejected]  # the robot refused the others
+    if applied:
+        latest = max(applied, key=lambda a: a.action_seq)
         return _ACTION_STATE[latest.action]
     return max((m.report.state for m in members), key=_STATE_RANK.__getitem__)
 

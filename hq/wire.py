@@ -3,8 +3,12 @@
 mavlink_io.convert owns every scaled-integer conversion (degE7, mm, us) and
 mavlink_io.tunnel the TUNNEL envelope (payload_type 32800: one whole MAVLink 2
 frame, signed when signing is on). This module only gives them the shapes the HQ
-uses: a typed ``BadReport`` for reports that do not validate, and a TUNNEL
+uses: checked, typed values (hq.records) for what robots send, and a TUNNEL
 addressed to one robot's component.
+
+This is where a radio message becomes HQ values: every field is checked here once
+(``BadMessage`` names the field), so the rest of the HQ never sees a value it cannot
+store, merge, draw or export.
 """
 
 from __future__ import annotations
@@ -12,22 +16,50 @@ from __future__ import annotations
 from typing import Any
 
 from fusion.types import GlobalOrigin, VictimReport
+from hq import records
+from hq.records import IncomingReport, RobotStatus
 from mavlink_io import convert, tunnel
 from mavlink_io.codec import Codec
 
 MavMessage = Any
 
 
-class BadReport(ValueError):
-    """A RESCUE_VICTIM_REPORT whose fields do not make a VictimReport."""
+class BadMessage(ValueError):
+    """A message from a robot whose fields the HQ cannot use; the text names the field."""
 
 
-def report_from_msg(msg: MavMessage) -> VictimReport:
-    """The VictimReport (SI units) in a RESCUE_VICTIM_REPORT; BadReport when invalid."""
+def incoming_report(msg: MavMessage, received_unix_s: float) -> IncomingReport:
+    """The checked report in a RESCUE_VICTIM_REPORT; BadMessage when a field is unusable."""
     try:
-        return convert.msg_to_victim_report(msg)
+        records.check_report_time_usec(int(msg.time_usec))
+        report = records.check_report(convert.msg_to_victim_report(msg))
+    except ValueError as exc:  # BadRecord, or VictimReport's own checks
+        raise BadMessage(f"victim {msg.victim_id}: {exc}") from None
+    return IncomingReport(
+        report=report,
+        report_seq=int(msg.report_seq),
+        report_time_usec=int(msg.time_usec),
+        merged_into_id=int(msg.merged_into_id),
+        src_compid=int(msg.get_srcComponent()),
+        received_unix_s=received_unix_s,
+    )
+
+
+def status_from_msg(msg: MavMessage) -> RobotStatus:
+    """The checked RESCUE_STATUS; BadMessage for NaN, infinite or negative values."""
+    try:
+        return RobotStatus(
+            uptime_s=float(msg.uptime_s),
+            fps=float(msg.fps),
+            drop_pct=float(msg.drop_pct),
+            vision_ms=float(msg.vision_ms),
+            flags=int(msg.flags),
+            victims_confirmed=int(msg.victims_confirmed),
+            victims_tentative=int(msg.victims_tentative),
+            outbox_pending=int(msg.outbox_pending),
+        )
     except ValueError as exc:
-        raise BadReport(str(exc)) from None
+        raise BadMessage(str(exc)) from None
 
 
 def report_to_msg(
@@ -40,8 +72,21 @@ def report_to_msg(
 
 
 def origin_from_msg(msg: MavMessage) -> GlobalOrigin | None:
-    """The EKF origin in a GPS_GLOBAL_ORIGIN (None for ArduPilot's 0/0 'no origin')."""
-    return convert.origin_from_gps_global_origin(msg)
+    """The EKF origin in a GPS_GLOBAL_ORIGIN (None for ArduPilot's 0/0 'no origin').
+
+    BadMessage when it is off the globe or its altitude is implausible.
+    """
+    if msg.latitude == 0 and msg.longitude == 0:
+        return None
+    origin = convert.origin_from_gps_global_origin(msg)
+    if origin is None:  # convert refuses what is off the globe
+        raise BadMessage(
+            f"latitude {msg.latitude} / longitude {msg.longitude} (degE7) off the globe"
+        )
+    try:
+        return records.check_origin(origin)
+    except records.BadRecord as exc:
+        raise BadMessage(str(exc)) from None
 
 
 def wrap_tunnel(

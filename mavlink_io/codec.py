@@ -15,7 +15,9 @@ and unpack each candidate frame (CRC with CRC_EXTRA, signature):
   ``_MAX_SEQ_GAP`` ahead of that sender's last one), otherwise it is garbage. A false
   start marker in corrupt bytes passes that test with odds of about 1 in 2 million,
   so it cannot swallow the valid frames behind it;
-- with signing on, a frame that fails the signature policy is consumed and counted.
+- with signing on, a frame that fails the signature policy is consumed and counted;
+  ``decode_frame`` (one whole frame, e.g. a TUNNEL payload) checks signatures in a
+  replay window of its own.
 
 Nothing raises out of ``feed``: an unexpected exception from the decoder counts as
 a bad frame. ``encode`` is thread-safe (it owns the sequence number).
@@ -48,6 +50,7 @@ _SIGNATURE_LEN = 13
 _IFLAG_SIGNED = 0x01
 _START = re.compile(b"[\xfd\xfe]")
 _MAX_SEQ_GAP = 8  # frames of a sender that may be lost between two we see
+MAX_SENDERS = 1024  # (system, component) pairs whose last sequence number is kept
 
 
 @dataclass
@@ -77,10 +80,15 @@ class Codec:
     ) -> None:
         self.module = module if module is not None else dialect.load()
         self.mav = self.module.MAVLink(None, src_system, src_component)
+        # Frames decoded one by one (TUNNEL payloads) have their own signing replay
+        # window: a robot signs the inner frame before the TUNNEL around it, so the
+        # envelope arrives with the later timestamp of the same stream.
+        self._frame_mav = self.module.MAVLink(None, src_system, src_component)
         self.counters = CodecCounters()
         self.signing = signing
         if signing is not None:
             signing_mod.enable(self.mav, signing)
+            signing_mod.enable(self._frame_mav, signing)
         self._buf = bytearray()
         self._encode_lock = threading.Lock()
         self._decode_lock = threading.Lock()
@@ -97,6 +105,11 @@ class Codec:
             raise ValueError(f"src_system must be in 1..255, got {value}")
         with self._encode_lock:
             self.mav.srcSystem = value
+
+    @property
+    def tracked_senders(self) -> int:
+        """How many senders' last sequence numbers are kept (at most MAX_SENDERS)."""
+        return len(self._last_seq)
 
     @property
     def src_component(self) -> int:
@@ -138,7 +151,7 @@ class Codec:
     def decode_frame(self, frame: bytes) -> MavMessage | None:
         """Decode one complete frame (e.g. from a TUNNEL payload); None if it is not valid."""
         with self._decode_lock:
-            msg, _length = self._decode_at(bytearray(frame), 0, len(frame))
+            msg, _length = self._decode_at(bytearray(frame), 0, len(frame), self._frame_mav)
         if msg is None or msg is _NEED_MORE or msg is _REJECTED:
             return None
         return msg
@@ -168,7 +181,7 @@ class Codec:
             pos = start + length
         return pos
 
-    def _decode_at(self, buf: bytearray, start: int, end: int) -> tuple[Any, int]:
+    def _decode_at(self, buf: bytearray, start: int, end: int, mav: Any = None) -> tuple[Any, int]:
         """(message | None | _NEED_MORE | _REJECTED, frame length) for a frame at ``start``."""
         available = end - start
         if available < 3:
@@ -200,7 +213,7 @@ class Codec:
             self.counters.unknown_messages += 1
         frame = buf[start : start + length]
         try:
-            msg = self.mav.decode(frame)
+            msg = (mav or self.mav).decode(frame)
         except self.module.MAVError as exc:
             reason = str(getattr(exc, "message", exc))
             if "signature" in reason:
@@ -216,7 +229,10 @@ class Codec:
             self.counters.bad_frames += 1
             log.debug("decoder failed on message id %d: %r", msg_id, exc)
             return None, 0
+        self._last_seq.pop(sender, None)  # most recently heard last
         self._last_seq[sender] = seq
+        if len(self._last_seq) > MAX_SENDERS:
+            del self._last_seq[next(iter(self._last_seq))]  # the longest silent sender
         return msg, length
 
 

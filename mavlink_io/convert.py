@@ -41,8 +41,6 @@ FLAG_URGENCY_CHANGED = 4
 FLAG_MOVED = 8
 FLAG_REQUESTED = 16
 
-CAPTURE_RESULT_SUCCESS = 1  # CAMERA_IMAGE_CAPTURED.capture_result: QGC draws a marker
-
 # What an autopilot on the ground can report; beyond is a corrupt or forged message.
 MAX_ANGLE_RAD = 2.0 * math.pi
 MAX_LOCAL_M = 100_000.0  # from the EKF origin
@@ -281,35 +279,3 @@ def msg_to_victim_report(msg: MavMessage) -> VictimReport:
         )
     except ValueError as exc:
         raise ValueError(f"RESCUE_VICTIM_REPORT victim {msg.victim_id}: {exc}") from None
-
-
-def victim_marker_msg(
-    report: VictimReport,
-    time_boot_s: float,
-    time_unix_s: float,
-    origin_alt_m: float | None = None,
-    module: ModuleType | None = None,
-) -> MavMessage | None:
-    """CAMERA_IMAGE_CAPTURED at the victim (a point on stock QGC's map); None without lat/lon.
-
-    image_index is the victim id, so the HQ can tell the markers apart; file_url
-    carries a short label.
-    """
-    if report.lat_deg is None or report.lon_deg is None or report.alt_m is None:
-        return None
-    m = _module(module)
-    relative_alt_m = report.alt_m - origin_alt_m if origin_alt_m is not None else 0.0
-    label = f"victim {report.victim_id} {report.urgency.name}".encode()
-    return m.MAVLink_camera_image_captured_message(
-        time_boot_ms=max(0, round(time_boot_s * MS_PER_S)) & 0xFFFFFFFF,
-        time_utc=usec_from_unix_s(time_unix_s),
-        camera_id=0,
-        lat=e7_from_deg(report.lat_deg),
-        lon=e7_from_deg(report.lon_deg),
-        alt=round(report.alt_m * MM_PER_M),
-        relative_alt=round(relative_alt_m * MM_PER_M),
-        q=[1.0, 0.0, 0.0, 0.0],
-        image_index=min(report.victim_id, 0x7FFFFFFF),
-        capture_result=CAPTURE_RESULT_SUCCESS,
-        file_url=label,
-    )

@@ -9,13 +9,24 @@ Policy when signing is on: every outgoing message is signed. Incoming messages
 that would change our state (RESCUE_ACK, RESCUE_OPERATOR_ACTION) are accepted only
 with a valid signature; others (the autopilot's telemetry, which ArduPilot may not
 sign) are accepted unsigned. Rejections are counted by the codec.
+
+Replay protection (MAVLink 2 signing): each stream (link_id, system, component)
+must carry increasing timestamps. pymavlink's ``check_signature`` records a frame's
+timestamp before it checks the signature, so one forged frame with a far-future
+timestamp made every later genuine frame of that stream look like a replay, and
+raised our own outgoing timestamp. ``enable`` replaces it with ``check_signature``
+below: the signature is verified first, and only a verified frame may advance a
+stream's timestamp or ours.
 """
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import logging
 import stat
 import time
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +42,8 @@ STATE_CHANGING_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
 
 # MAVLink signing timestamps count 10 us units since 2015-01-01 00:00:00 UTC.
 _SIGNING_EPOCH_UNIX_S = 1420070400
+_NEW_STREAM_SLACK = 6_000_000  # a new stream may start up to 60 s behind our timestamp
+_SIGNATURE_BLOCK = 13  # link_id (1), timestamp (6), signature (6)
 
 
 @dataclass(frozen=True)
@@ -102,4 +115,29 @@ def enable(mav: Any, signing: Signing) -> None:
     mav.signing.timestamp = signing_timestamp()
     mav.signing.sign_outgoing = True
     mav.signing.allow_unsigned_callback = allow_unsigned
+    mav.check_signature = types.MethodType(check_signature, mav)
     log.info("MAVLink 2 signing on (link_id %d)", signing.link_id)
+
+
+def check_signature(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """True when a signed frame verifies and is not a replay (pymavlink's contract).
+
+    Unlike pymavlink's own, nothing is recorded for a frame whose signature does
+    not verify: a forger cannot move a stream's timestamp, or ours, forward.
+    """
+    state = mav.signing
+    block = bytes(msgbuf[-_SIGNATURE_BLOCK:])
+    link_id = block[0]
+    timestamp = int.from_bytes(block[1:7], "little")
+    digest = hashlib.sha256(state.secret_key + bytes(msgbuf[:-6])).digest()[:6]
+    if not hmac.compare_digest(digest, block[7:]):
+        return False
+    stream = (link_id, src_system, src_component)
+    last = state.stream_timestamps.get(stream)
+    if last is not None and timestamp <= last:
+        return False  # a replay, or older than what this stream already sent
+    if last is None and timestamp + _NEW_STREAM_SLACK < state.timestamp:
+        return False  # a new stream starting with an old frame: a replay
+    state.stream_timestamps[stream] = timestamp
+    state.timestamp = max(state.timestamp, timestamp)
+    return True

@@ -1,16 +1,28 @@
 """STATUSTEXT that a stock QGroundControl shows, pops up and speaks.
 
-QGC shows severities 0-3 (EMERGENCY..ERROR) in red with a pop-up, 4-5 (WARNING,
-NOTICE) in orange, and speaks NOTICE or more urgent. Urgency maps to:
+QGC shows severities 0-3 (EMERGENCY..ERROR) in red with a pop-up (from the active
+vehicle), 4-5 (WARNING, NOTICE) in orange, and speaks NOTICE or more urgent.
+Announcements of a new victim, and of a victim that became CRITICAL, are spoken:
 
-    CRITICAL -> MAV_SEVERITY_CRITICAL (2)   red, pop-up, spoken
-    MEDIUM   -> MAV_SEVERITY_WARNING  (4)   orange, spoken
-    LIGHT    -> MAV_SEVERITY_NOTICE   (5)   orange, spoken
+    CRITICAL         -> MAV_SEVERITY_CRITICAL (2)   red, pop-up, spoken
+    MEDIUM and LIGHT -> ``announce_severity`` ([reporting], default
+                        MAV_SEVERITY_NOTICE (5): orange, spoken; 6 or 7: listed only)
+
+Other news of a victim (an escalation to MEDIUM, rescued, false alarm, merged) is
+quiet: MAV_SEVERITY_INFO (6), listed, not spoken.
+
+An announcement says which robot, what, how urgent and where, in one 50-byte
+chunk when it fits: ``R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start`` (metres
+from the local frame's origin, where the rover's EKF started).
 
 A STATUSTEXT holds 50 bytes of ASCII. Longer text goes out as MAVLink 2 chunks
-sharing a non-zero ``id`` with ``chunk_seq`` 0, 1, ...; the last chunk is shorter
-than 50 bytes (an empty one is added when the text fills whole chunks), which is
-how QGC and MAVProxy know the text is complete.
+sharing a non-zero ``id`` with ``chunk_seq`` 0, 1, ...; QGC (and MAVProxy) take a
+chunk shorter than 50 bytes as the last one, so every chunk but the last is
+exactly 50 bytes and the last is shorter. Text is split between words: a chunk
+ends at a space and is padded with spaces to 50 bytes (QGC's message list shows
+runs of spaces as one, and speech ignores them). A text that fits in 50 bytes is
+one unchunked STATUSTEXT (id 0), never followed by an empty chunk (which QGC
+would show as " ... ").
 """
 
 from __future__ import annotations
@@ -31,41 +43,62 @@ MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 MAV_SEVERITY_INFO = 6
 
-SEVERITY_BY_URGENCY = {
-    Urgency.CRITICAL: MAV_SEVERITY_CRITICAL,
-    Urgency.MEDIUM: MAV_SEVERITY_WARNING,
-    Urgency.LIGHT: MAV_SEVERITY_NOTICE,
+_STATE_WORDS = {
+    TrackState.RESCUED: "RESCUED",
+    TrackState.FALSE_ALARM: "FALSE ALARM",
+    TrackState.MERGED: "MERGED",
+    TrackState.NOT_SEEN_RECENTLY: "not seen recently",
 }
-
-
-def severity_for(urgency: Urgency) -> int:
-    """The MAV_SEVERITY a victim of this urgency is announced with."""
-    return SEVERITY_BY_URGENCY[urgency]
 
 
 def _ascii(text: str) -> str:
     return text.encode("ascii", "replace").decode("ascii")
 
 
-def victim_text(report: VictimReport) -> str:
-    """A concise announcement within 50 characters, e.g.
-    ``CRITICAL victim #3 at N12.3 E4.5 (8%)``.
+def robot_label(sysid: int) -> str:
+    """How announcements name a robot: ``R2`` for system ID 2."""
+    return f"R{sysid}"
 
-    States other than CONFIRMED say so (``RESCUED victim #3``). Falls back to a
-    compact form when large numbers would not fit.
-    """
-    pct = round(report.visibility_pct)
-    name = report.urgency.name
-    if report.state not in (TrackState.CONFIRMED, TrackState.TENTATIVE):
-        name = report.state.name.replace("_", " ")
-    where = f"N{report.north_m:.1f} E{report.east_m:.1f}"
-    for text in (
-        f"{name} victim #{report.victim_id} at {where} ({pct}%)",
-        f"{name} #{report.victim_id} {where} {pct}%",
-    ):
-        if len(text) <= TEXT_BYTES:
-            return text
-    return f"{name} #{report.victim_id} {where}"[:TEXT_BYTES]
+
+def where_text(north_m: float, east_m: float) -> str:
+    """``12.3 m N 4.5 m E of start`` (S and W for negative offsets)."""
+    ns = "N" if north_m >= 0 else "S"
+    ew = "E" if east_m >= 0 else "W"
+    return f"{abs(north_m):.1f} m {ns} {abs(east_m):.1f} m {ew} of start"
+
+
+def victim_text(report: VictimReport) -> str:
+    """``R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start``; a state other than
+    confirmed is said instead of the urgency (``R2 victim 7 RESCUED, ...``)."""
+    robot = robot_label(report.robot_sysid)
+    where = where_text(report.north_m, report.east_m)
+    state = _STATE_WORDS.get(report.state)
+    if state is None:
+        return f"{robot} {report.urgency.name} victim {report.victim_id}, {where}"
+    return f"{robot} victim {report.victim_id} {state}, {where}"
+
+
+def split_text(data: bytes) -> list[bytes]:
+    """``data`` as STATUSTEXT chunks: all but the last exactly 50 bytes, cut after a
+    word and padded with spaces; the last shorter than 50 and never empty. A word of
+    50 bytes or more is cut inside."""
+    if len(data) <= TEXT_BYTES:
+        return [data]
+    chunks = []
+    rest = data
+    while len(rest) >= TEXT_BYTES:  # the last chunk must be shorter than 50
+        space = rest.rfind(b" ", 1, TEXT_BYTES)  # a chunk keeps >= 1 byte of padding
+        if space > 0:
+            chunks.append(rest[:space].ljust(TEXT_BYTES))
+            rest = rest[space + 1 :]
+        elif len(rest) > TEXT_BYTES:
+            chunks.append(rest[:TEXT_BYTES])
+            rest = rest[TEXT_BYTES:]
+        else:  # one 50-byte word left: a space inside it, rather than an empty chunk
+            chunks.append(rest[: TEXT_BYTES - 1].ljust(TEXT_BYTES))
+            rest = rest[TEXT_BYTES - 1 :]
+    chunks.append(rest)
+    return chunks
 
 
 class ChunkIds:
@@ -95,24 +128,24 @@ def statustext_msgs(
     data = _ascii(text).encode("ascii")
     if len(data) <= TEXT_BYTES:
         return [m.MAVLink_statustext_message(severity, data, 0, 0)]
-    ids = chunk_ids if chunk_ids is not None else ChunkIds()
-    chunk_id = ids.next()
-    chunks = [data[i : i + TEXT_BYTES] for i in range(0, len(data), TEXT_BYTES)]
-    if len(chunks[-1]) == TEXT_BYTES:
-        chunks.append(b"")  # a short last chunk tells the receiver the text is complete
+    chunks = split_text(data)
     if len(chunks) > 256:
         raise ValueError(f"text of {len(data)} bytes needs more than 256 chunks")
+    ids = chunk_ids if chunk_ids is not None else ChunkIds()
+    chunk_id = ids.next()
     return [
         m.MAVLink_statustext_message(severity, chunk, chunk_id, seq)
         for seq, chunk in enumerate(chunks)
     ]
 
 
-def victim_statustext(
-    report: VictimReport, chunk_ids: ChunkIds | None = None, module: ModuleType | None = None
-) -> list[MavMessage]:
-    """The STATUSTEXT announcing a victim, with the severity of its urgency."""
-    severity = severity_for(report.urgency)
-    if report.state in (TrackState.RESCUED, TrackState.FALSE_ALARM, TrackState.MERGED):
-        severity = MAV_SEVERITY_INFO  # news, not an alarm
-    return statustext_msgs(victim_text(report), severity, chunk_ids, module)
+def victim_severity(
+    report: VictimReport, spoken: bool, announce_severity: int = MAV_SEVERITY_NOTICE
+) -> int:
+    """Spoken news: CRITICAL for a CRITICAL victim, else ``announce_severity``;
+    other news INFO (listed, not spoken)."""
+    if not spoken or report.state in _STATE_WORDS:
+        return MAV_SEVERITY_INFO
+    if report.urgency is Urgency.CRITICAL:
+        return MAV_SEVERITY_CRITICAL
+    return announce_severity

@@ -27,8 +27,10 @@ If no COMMAND_ACK accepts it within ``ack_timeout_s`` (twice), or it is refused,
 old REQUEST_DATA_STREAM is used instead.
 
 Messages for us: RESCUE_ACK and RESCUE_OPERATOR_ACTION addressed to our
-(sysid, component) or broadcast, directly or inside our TUNNEL, go to ``on_dialect``
-(called on the reader thread) or, without one, to the ``inbox`` queue.
+(sysid, component) or broadcast, directly or inside our TUNNEL, and a ground
+station's PARAM_REQUEST_LIST/READ, PARAM_SET and COMMAND_LONG addressed to our
+component or to all, go to ``on_dialect`` (called on the reader thread) or,
+without one, to the ``inbox`` queue.
 """
 
 from __future__ import annotations
@@ -83,6 +85,10 @@ _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout j
 _HEARTBEAT_GAP_S = 1.5  # autopilots beat at 1 Hz: a longer silence may be a reboot
 _MIN_STALE_S = 1.0  # no telemetry for this long (or 3 periods) while connected: re-request
 _DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
+# PARAM_REQUEST_READ, PARAM_REQUEST_LIST, PARAM_SET, COMMAND_LONG: a ground station
+# asking the companion's component for its parameters (mavlink_io/params.py) or its
+# camera and video stream (mavlink_io/camera.py) also goes to on_dialect.
+_GROUND_REQUEST_IDS = frozenset({20, 21, 23, 76})
 _INBOX_MAX = 1000
 
 
@@ -180,6 +186,9 @@ class VehicleLink:
         self._on_dialect = on_dialect
         self._on_message = on_message
         self._sysid = s.system_id
+        # Other components this companion speaks for (its camera): requests addressed
+        # to them also go to on_dialect; their replies go out through send_encoded.
+        self.other_components: frozenset[int] = frozenset()
         self._lock = threading.Lock()
         self._connected = threading.Event()
         self._changed = threading.Condition()  # notified after every reader-loop pass
@@ -254,6 +263,23 @@ class VehicleLink:
             self.counters.sends_dropped += 1
             return False
         data = self.codec.encode(msg)
+        try:
+            self.link.write(data)
+        except LinkError as exc:
+            self.counters.sends_dropped += 1
+            log.debug("%s: send failed: %s", self.link.name, exc)
+            return False
+        self.counters.messages_out += 1
+        if self._tlog is not None:
+            self._tlog.write(data)
+        return True
+
+    def send_encoded(self, data: bytes) -> bool:
+        """Send a frame encoded by another of this companion's components; False if
+        dropped (the vehicle's system ID is not known yet, or the link failed)."""
+        if self._sysid == 0:
+            self.counters.sends_dropped += 1
+            return False
         try:
             self.link.write(data)
         except LinkError as exc:
@@ -382,7 +408,7 @@ class VehicleLink:
         if msg_id == 0:  # HEARTBEAT
             self._on_heartbeat(msg, now)
             return
-        if msg_id in _DIALECT_IDS:
+        if msg_id in _DIALECT_IDS or msg_id in _GROUND_REQUEST_IDS:
             self._deliver(msg)
             return
         if tunnel.is_ours(msg):
@@ -444,9 +470,9 @@ class VehicleLink:
     def _deliver(self, msg: MavMessage) -> None:
         target_sys = getattr(msg, "target_system", 0)
         target_comp = getattr(msg, "target_component", 0)
-        if target_sys not in (0, self._sysid) or target_comp not in (
-            0,
-            self.codec.src_component,
+        if target_sys not in (0, self._sysid) or (
+            target_comp not in (0, self.codec.src_component)
+            and target_comp not in self.other_components
         ):
             return
         if self._on_dialect is not None:

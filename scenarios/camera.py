@@ -2,7 +2,7 @@
 
 The renderer and the companion must agree on the camera exactly, so the sim's
 default camera is built by the companion's own code from its default config
-(640x480, 70 degrees horizontal field of view, 25 degrees down, 15 cm forward and
+(640x480, 70 degrees horizontal field of view, 12 degrees down, 15 cm forward and
 20 cm above the vehicle reference point), and recordings carry a ``camera.toml``
 that the companion's config loader reads back into the same model.
 """
@@ -19,13 +19,6 @@ VEHICLE_HEIGHT_M = (
 )
 
 
-# The detector the companion runs on simulated frames. The product's default is the
-# real person models (``people``), which do not see the flat figures this renderer
-# draws; until the renderer draws people that look like people (issue 15), the
-# simulated missions run the ``classic`` colour detector, which was built for them.
-SIM_DETECTOR_TOML = '[detector]\nbackend = "classic"  # the simulator\'s flat figures (issue 15)\n'
-
-
 def default_camera() -> CameraModel:
     from companion.calibration import camera_model
     from companion.config import CameraConfig
@@ -33,9 +26,15 @@ def default_camera() -> CameraModel:
     return camera_model(CameraConfig(source="sim"))
 
 
+def _deg(rad: float) -> float:
+    """Degrees, rounded to 1e-9: the config's degrees -> radians -> degrees round trip
+    (-12 -> -12.000000000000002) must read back as the same radians."""
+    return round(math.degrees(rad), 9)
+
+
 def camera_toml(camera: CameraModel, source: str, fps: float) -> str:
-    """A [camera] config fragment that rebuilds exactly this camera model, and the
-    simulator's [detector]."""
+    """A [camera] config fragment that rebuilds exactly this camera model. The detector
+    is the product's default (the real person models), as on the Pi."""
     k, m = camera.intrinsics, camera.mount
     dist = ", ".join(repr(float(c)) for c in k.distortion)
     return "\n".join(
@@ -56,11 +55,10 @@ def camera_toml(camera: CameraModel, source: str, fps: float) -> str:
             f"x_m = {m.x_m!r}",
             f"y_m = {m.y_m!r}",
             f"z_m = {m.z_m!r}",
-            f"roll_deg = {math.degrees(m.roll_rad)!r}",
-            f"pitch_deg = {math.degrees(m.pitch_rad)!r}",
-            f"yaw_deg = {math.degrees(m.yaw_rad)!r}",
+            f"roll_deg = {_deg(m.roll_rad)!r}",
+            f"pitch_deg = {_deg(m.pitch_rad)!r}",
+            f"yaw_deg = {_deg(m.yaw_rad)!r}",
             "",
-            SIM_DETECTOR_TOML,
         ]
     )
 

@@ -25,7 +25,7 @@ from collections.abc import Callable
 
 from mavlink_io.convert import usec_from_unix_s
 from scenarios.motion import TruePose
-from scenarios.render import Renderer, encode_jpeg
+from scenarios.render import MIN_VIEW_PX, Renderer, encode_jpeg
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +85,8 @@ class CameraServer:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.frames_rendered = 0
+        # Ground truth for scoring: when each victim first showed enough of itself.
+        self.first_in_view_unix_s: dict[int, float] = {}
 
     @property
     def address(self) -> tuple[str, int]:
@@ -164,6 +166,9 @@ class CameraServer:
             result = self.renderer.render(pose)
             packet = pack_frame(t_unix, encode_jpeg(result.image, self.jpeg_quality))
             self.frames_rendered += 1
+            for vid, px in result.visible_px.items():
+                if px >= MIN_VIEW_PX:
+                    self.first_in_view_unix_s.setdefault(vid, t_unix)
             with self._lock:
                 clients = list(self._clients)
             for c in clients:

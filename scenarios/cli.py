@@ -5,8 +5,9 @@
     rescue-sim score  --truth DIR/ground_truth.json --victims REPORT.json [--json]
     rescue-sim sheet  (--preset P | --seed S | --world W) --out sheet.png
     rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
-    rescue-sim demo   [--preset P | --seed S | --world W] [--out DIR] [--duration-s T]
                       [--camera-port PORT] [--time-scale X]
+    rescue-sim demo   [--preset P | --seed S | --world W] [--out DIR] [--duration-s T]
+                      [--resume]
 
 Exit status: 0 success, 1 runtime failure, 2 bad input or usage.
 """
@@ -92,6 +93,11 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--out", type=Path, default=Path("demo-out"), help="logs, map, exports")
     d.add_argument("--duration-s", type=float, help="default: the whole route")
     d.add_argument("--speed-m-s", type=float, default=0.6)
+    d.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep the previous run's state in --out (default: start fresh)",
+    )
     return parser
 
 
@@ -175,7 +181,7 @@ def _cmd_rover(args: argparse.Namespace, world: World) -> int:
 def _cmd_demo(args: argparse.Namespace, world: World) -> int:
     from scenarios.demo import print_summary, run_demo
 
-    result = run_demo(world, args.out, args.duration_s, args.speed_m_s)
+    result = run_demo(world, args.out, args.duration_s, args.speed_m_s, args.resume)
     print_summary(result)
     if result.companion_exit != 0 or result.hq_exit != 0:
         print(

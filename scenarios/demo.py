@@ -5,8 +5,16 @@ The simulated rover and its camera run in this process (scenarios.live); the rea
 robot: companion <-> rover on one UDP port, rover <-> HQ on another. Our reports
 reach the HQ only inside TUNNEL, routed by the rover as ArduPilot would. The HQ's
 live table shows victims as they are confirmed; at the end the demo prints the
-HQ's victim table, scores the companion against the world's ground truth and writes
-a mission map PNG.
+HQ's victim table, then each true victim beside what the HQ received for it (ID,
+urgency, error, seconds from first in view to first report) and the totals, and
+writes a mission map PNG (debris, the rover's path, true and reported victims with
+their 95 % ellipses, a legend) of what the HQ holds.
+
+Every run starts fresh (the previous run's state in the output folder is removed)
+unless ``--resume`` is given. The mission runs live, in real time: the companion
+processes what frames its CPU allows, so two runs on a loaded machine can differ in
+a frame or two; ``rescue-sim record`` + ``rescue-companion replay`` (and the
+scenario suite in ``make bench``) are the deterministic route.
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -21,14 +30,19 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from companion.config import load_config
-from companion.missionmap import draw_mission_map
-from companion.store import Store
-from fusion.tracker import VictimTracker
+from companion.missionmap import MapTruth, MapVictim, draw_mission_map
 from fusion.types import TrackState
-from scenarios.camera import SIM_DETECTOR_TOML
+from hq.registry import Registry
+from hq.view import hq_victims
 from scenarios.live import LiveSim
-from scenarios.score import GroundTruth, ReportedVictim, TrueVictim, format_score, score
+from scenarios.score import (
+    GroundTruth,
+    ReportedVictim,
+    ScoreResult,
+    TrueVictim,
+    format_score,
+    score,
+)
 from scenarios.world import World
 
 log = logging.getLogger(__name__)
@@ -55,7 +69,7 @@ def _companion_config(sim: LiveSim, out_dir: Path) -> Path:
         '[hq]\nurl = ""  # reports go inside TUNNEL through the rover, as through ArduPilot\n'
         "tunnel = true\n\n"
         f'[camera]\nsource = "{sim.camera_source}"\n\n'
-        f'[paths]\nstate_dir = "{out_dir / "companion-state"}"\n\n' + SIM_DETECTOR_TOML
+        f'[paths]\nstate_dir = "{out_dir / "companion-state"}"\n\n'
     )
     return path
 
@@ -71,7 +85,7 @@ def _stop(proc: subprocess.Popen[bytes], name: str) -> int:
         return proc.wait()
 
 
-def _truth(world: World) -> GroundTruth:
+def _truth(world: World, first_in_view: dict[int, float]) -> GroundTruth:
     return GroundTruth(
         tuple(
             TrueVictim(
@@ -81,15 +95,51 @@ def _truth(world: World) -> GroundTruth:
                 v.urgency,
                 None if math.isnan(v.visible_north_m) else v.visible_north_m,
                 None if math.isnan(v.visible_east_m) else v.visible_east_m,
+                first_in_view.get(v.victim_id),
             )
             for v in world.victims
         )
     )
 
 
-def run_demo(world: World, out_dir: Path, duration_s: float | None, speed_m_s: float) -> DemoResult:
-    """Run a live mission; the children's logs and every output land in ``out_dir``."""
+# What a demo run writes into its folder; a fresh run (no --resume) removes them first.
+_OUTPUTS = (
+    "companion-state",
+    "exports",
+    "hq.sqlite",
+    "hq.sqlite-wal",
+    "hq.sqlite-shm",
+    "companion.toml",
+    "companion.log",
+    "hq.log",
+    "mission_map.png",
+)
+
+
+def _fresh(out_dir: Path) -> None:
+    for name in _OUTPUTS:
+        path = out_dir / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+
+
+def run_demo(
+    world: World,
+    out_dir: Path,
+    duration_s: float | None,
+    speed_m_s: float,
+    resume: bool = False,
+) -> DemoResult:
+    """Run a live mission; the children's logs and every output land in ``out_dir``.
+
+    Fresh unless ``resume``: the previous run's state, logs and exports in
+    ``out_dir`` are removed first (nothing else there is touched)."""
+    out_dir = out_dir.resolve()  # the children resolve paths from elsewhere
     out_dir.mkdir(parents=True, exist_ok=True)
+    if not resume:
+        _fresh(out_dir)
     env = dict(os.environ)
     python = sys.executable
     with LiveSim(world, speed_m_s=speed_m_s) as sim:
@@ -129,39 +179,100 @@ def run_demo(world: World, out_dir: Path, duration_s: float | None, speed_m_s: f
         finally:
             companion_exit = _stop(companion, "rescue-companion")
             hq_exit = _stop(hq, "rescue-hq")
-    return _summarise(world, out_dir, cfg, route, companion_exit, hq_exit)
+        first_in_view = dict(sim.camera.first_in_view_unix_s)
+    return _summarise(world, out_dir, route, first_in_view, companion_exit, hq_exit)
 
 
 def _summarise(
     world: World,
     out_dir: Path,
-    cfg: Path,
     route: list[tuple[float, float]],
+    first_in_view: dict[int, float],
     companion_exit: int,
     hq_exit: int,
 ) -> DemoResult:
-    config = load_config(cfg)
-    store = Store(config.paths.state_dir / "companion.sqlite")
-    snapshot = store.get("tracker")
-    store.close()
-    tracker = (
-        VictimTracker.restore(config.tracker, snapshot)
-        if snapshot
-        else VictimTracker(config.tracker)
-    )
-    victims = [
-        v
-        for v in tracker.victims()
-        if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
-    ]
-    map_png = out_dir / "mission_map.png"
-    draw_mission_map(map_png, route, victims, [(v.north_m, v.east_m) for v in world.victims])
+    """Score and map what the HQ holds (the victims ``rescue-hq list`` shows)."""
+    registry = Registry(out_dir / "hq.sqlite")
+    try:
+        victims = [v for v in hq_victims(registry) if v.state is not TrackState.FALSE_ALARM]
+        received = registry.first_received_unix_s()
+    finally:
+        registry.close()
     reported = [
-        ReportedVictim(v.victim_id, v.urgency, v.north_m, v.east_m, v.first_seen_unix_s)
+        ReportedVictim(
+            v.hq_id,
+            v.urgency,
+            v.north_m,
+            v.east_m,
+            v.first_seen_unix_s,
+            min((received[s] for s in v.sources if s in received), default=None),
+            ((v.sigma_m**2, 0.0), (0.0, v.sigma_m**2)),
+        )
         for v in victims
     ]
-    result = score(_truth(world), reported)
-    return DemoResult(out_dir, len(victims), map_png, format_score(result), companion_exit, hq_exit)
+    result = score(_truth(world, first_in_view), reported)
+    map_png = out_dir / "mission_map.png"
+    draw_mission_map(
+        map_png,
+        route,
+        [
+            MapVictim(
+                f"V{v.hq_id}",
+                v.urgency,
+                v.north_m,
+                v.east_m,
+                ((v.sigma_m**2, 0.0), (0.0, v.sigma_m**2)),
+                v.visibility_pct,
+            )
+            for v in victims
+        ],
+        [MapTruth(f"T{v.victim_id}", v.urgency, v.north_m, v.east_m) for v in world.victims],
+        [d.polygon for d in world.debris],
+        (0.0, world.size_m[0], 0.0, world.size_m[1]),
+    )
+    table = _victim_table(world, result, reported, first_in_view)
+    return DemoResult(
+        out_dir,
+        len(victims),
+        map_png,
+        table + "\n\n" + format_score(result),
+        companion_exit,
+        hq_exit,
+    )
+
+
+def _victim_table(
+    world: World,
+    result: ScoreResult,
+    reported: list[ReportedVictim],
+    first_in_view: dict[int, float],
+) -> str:
+    """One line per true victim: what the HQ got for it."""
+    by_true = {m.true_id: m for m in result.matches}
+    by_id = {r.victim_id: r for r in reported}
+    lines = ["true victim   urgency    reported as          error   first report"]
+    for v in world.victims:
+        m = by_true.get(v.victim_id)
+        if m is None:
+            lines.append(f"T{v.victim_id:<11d} {v.urgency.name:<10s} not reported")
+            continue
+        r = by_id[m.reported_id]
+        seen = first_in_view.get(v.victim_id)
+        delay = (
+            f"{r.first_reported_unix_s - seen:5.1f} s after first in view"
+            if seen is not None and r.first_reported_unix_s is not None
+            else "n/a"
+        )
+        lines.append(
+            f"T{v.victim_id:<11d} {v.urgency.name:<10s} V{r.victim_id:<3d} "
+            f"{r.urgency.name:<16s} {m.error_m:4.2f} m  {delay}"
+        )
+    false = [r for r in reported if r.victim_id not in {m.reported_id for m in result.matches}]
+    for r in false:
+        lines.append(
+            f"{'(none)':<12s} {'':<10s} V{r.victim_id:<3d} {r.urgency.name:<16s} false victim"
+        )
+    return "\n".join(lines)
 
 
 def print_summary(result: DemoResult) -> None:
@@ -176,5 +287,5 @@ def print_summary(result: DemoResult) -> None:
     print("\nagainst the world's ground truth:")
     print(result.score_text)
     print(f"\nmission map: {result.map_png}")
-    print(f"HQ exports: {result.out_dir / 'exports'} (GeoJSON, KML, QGC plan)")
+    print(f"HQ exports: {result.out_dir / 'exports'} (GeoJSON, KML, CSV)")
     print(f"logs: {result.out_dir / 'companion.log'}, {result.out_dir / 'hq.log'}")

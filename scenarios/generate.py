@@ -1,9 +1,12 @@
 """Random mixed worlds: seed -> World, deterministic.
 
 3-6 victims of every urgency class (each partly buried by a slab whose reach along
-the body is searched until the exact visibility lands in the class wanted), wide
-palettes of skin and clothing, ordinary rubble (concrete, wood, metal), look-alike
-debris in skin and clothing colours, and one or two dark zones.
+the body is searched until the exact visibility lands in the class wanted): adults
+and children, on the back, the side, face down or curled, skin from very dark to
+very pale, clothing plain, patterned or hi-vis, grey, brown, black or dusty, with
+dust on skin and clothes; ordinary rubble (concrete, wood, metal, cartons, pallets,
+plasterboard, tarps, cables), racking uprights along the walls, look-alike debris in
+skin and clothing colours, and one or two dark zones.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import math
 import numpy as np
 
 from fusion.types import Urgency
+from scenarios.body3d import PATTERNS, POSTURES
 from scenarios.world import RGB, Debris, LightZone, Victim, World, compute_visibility
 
 SKIN: tuple[RGB, ...] = (
@@ -42,6 +46,15 @@ CLOTHING: tuple[RGB, ...] = (
     (220, 120, 150),  # pink
     (30, 130, 130),  # teal
     (180, 160, 120),  # khaki
+    (150, 145, 135),  # dusty grey
+    (95, 80, 65),  # dusty brown
+)
+HAIR: tuple[RGB, ...] = (
+    (20, 16, 14),
+    (60, 40, 25),
+    (110, 80, 45),
+    (200, 170, 110),
+    (150, 150, 150),
 )
 TROUSERS: tuple[RGB, ...] = (
     (50, 60, 90),
@@ -53,6 +66,9 @@ TROUSERS: tuple[RGB, ...] = (
 )
 CONCRETE: tuple[RGB, ...] = ((142, 139, 133), (169, 165, 157), (111, 108, 104), (128, 122, 112))
 WOOD: tuple[RGB, ...] = ((139, 107, 74), (160, 120, 79), (94, 69, 48))
+CARDBOARD: tuple[RGB, ...] = ((176, 137, 92), (160, 124, 80), (190, 160, 120))
+PLASTERBOARD: tuple[RGB, ...] = ((215, 212, 204), (190, 188, 180))
+TARP: tuple[RGB, ...] = ((40, 80, 150), (60, 110, 70), (150, 150, 150))
 METAL: tuple[RGB, ...] = ((90, 101, 112), (123, 133, 145), (138, 75, 42))
 LOOKALIKE_SKIN: tuple[RGB, ...] = (
     (217, 163, 122),
@@ -62,6 +78,27 @@ LOOKALIKE_SKIN: tuple[RGB, ...] = (
     (150, 95, 60),
 )
 LOOKALIKE_CLOTH: tuple[RGB, ...] = ((42, 92, 170), (178, 42, 42), (240, 192, 32), (40, 120, 60))
+
+RUBBLE_KINDS = (
+    "slab",
+    "piece",
+    "plank",
+    "beam",
+    "carton",
+    "pallet",
+    "plasterboard",
+    "tarp",
+    "cable",
+)
+_PALETTE = {
+    "slab": CONCRETE,
+    "plank": WOOD,
+    "beam": METAL,
+    "carton": CARDBOARD,
+    "pallet": WOOD,
+    "plasterboard": PLASTERBOARD,
+    "tarp": TARP,
+}
 
 _TARGET_PCT = {
     Urgency.LIGHT: (60.0, 92.0),
@@ -95,12 +132,29 @@ def _bury(rng: np.random.Generator, v: Victim, urgency: Urgency) -> list[Debris]
     if urgency is Urgency.LIGHT and rng.random() < 0.3:
         return []
     lo_pct, hi_pct = _TARGET_PCT[urgency]
-    target = rng.uniform(lo_pct, hi_pct)
-    from_head = urgency is not Urgency.CRITICAL and rng.random() < 0.3
+    return bury(rng, v, rng.uniform(lo_pct, hi_pct), (lo_pct, hi_pct))
+
+
+def bury(
+    rng: np.random.Generator,
+    v: Victim,
+    target_pct: float,
+    accept_pct: tuple[float, float] | None = None,
+) -> list[Debris]:
+    """One slab over the body so that about ``target_pct`` of it stays visible.
+
+    The slab covers the body axis from beyond one end (the feet, or the head for a
+    victim more than 10 % visible, three times in ten) up to a reach found by
+    bisection; widths are tried from body-wide to wider than spread arms until the
+    visibility lands in ``accept_pct`` (default: target +- 20 % of it).
+    """
+    lo_pct, hi_pct = accept_pct or (0.8 * target_pct, 1.2 * target_pct)
+    critical = target_pct < 10.0
+    from_head = not critical and rng.random() < 0.3
     skew = rng.normal(0.0, math.radians(8.0))
     # A critical victim's slab is wide enough to reach over spread arms (a hand or the
     # face stays out); others are body-wide.
-    first = rng.uniform(0.75, 1.1) if urgency is Urgency.CRITICAL else rng.uniform(0.42, 0.6)
+    first = rng.uniform(0.75, 1.1) if critical else rng.uniform(0.42, 0.6)
     colour = _pick(rng, CONCRETE + WOOD)
     axis = v.heading_rad + (math.pi if from_head else 0.0)
 
@@ -119,7 +173,7 @@ def _bury(rng: np.random.Generator, v: Victim, urgency: Urgency) -> list[Debris]
         for _ in range(18):  # bisection on the reach: visibility falls as the slab grows
             mid = (lo + hi) / 2
             pct, _, _ = compute_visibility(v, (slab(mid, width),))
-            if pct > target:
+            if pct > target_pct:
                 lo = mid
             else:
                 hi = mid
@@ -144,15 +198,20 @@ def generate(seed: int, size_m: tuple[float, float] = (12.0, 8.0)) -> World:
             e = rng.uniform(1.2, size_m[1] - 1.2)
             if all(math.hypot(n - o.north_m, e - o.east_m) > 2.2 for o in victims):
                 break
+        child = rng.random() < 0.2
         v = Victim(
             victim_id=i,
             north_m=_r(n),
             east_m=_r(e),
             heading_rad=_r(rng.uniform(-math.pi, math.pi)),
-            height_m=_r(rng.uniform(1.5, 1.9)),
+            height_m=_r(rng.uniform(1.1, 1.45) if child else rng.uniform(1.5, 1.9)),
             skin_rgb=_pick(rng, SKIN),
             top_rgb=_pick(rng, CLOTHING),
             trousers_rgb=_pick(rng, TROUSERS),
+            hair_rgb=_pick(rng, HAIR),
+            posture=POSTURES[int(rng.integers(len(POSTURES)))],
+            pattern=PATTERNS[int(rng.choice(len(PATTERNS), p=[0.5, 0.15, 0.1, 0.15, 0.1]))],
+            dust=_r(rng.uniform(0.0, 0.6)),
             left_arm_rad=_r(math.radians(rng.uniform(0, 80))),
             right_arm_rad=_r(math.radians(rng.uniform(0, 80))),
             leg_spread_rad=_r(math.radians(rng.uniform(0, 10))),
@@ -172,14 +231,21 @@ def generate(seed: int, size_m: tuple[float, float] = (12.0, 8.0)) -> World:
 
     rubble: list[Debris] = []
     for _ in range(int(rng.integers(10, 18))):
-        kind = ["slab", "piece", "plank", "beam"][int(rng.integers(4))]
+        kind = RUBBLE_KINDS[int(rng.integers(len(RUBBLE_KINDS)))]
         size = rng.uniform(0.3, 1.2)
         n, e = spot(size / 2)
         if kind == "piece":
             rubble.append(Debris("piece", _pick(rng, CONCRETE), _irregular(rng, n, e, size)))
+        elif kind == "cable":
+            rubble.append(
+                Debris.box(
+                    "cable", (25, 25, 28), _r(n), _r(e), _r(size * 2), 0.02, rng.uniform(0, math.pi)
+                )
+            )
         else:
-            palette = {"slab": CONCRETE, "plank": WOOD, "beam": METAL}[kind]
-            w = size * rng.uniform(0.5, 0.9) if kind == "slab" else rng.uniform(0.1, 0.22)
+            palette = _PALETTE[kind]
+            narrow = kind in ("plank", "beam")
+            w = rng.uniform(0.1, 0.22) if narrow else size * rng.uniform(0.5, 0.9)
             rubble.append(
                 Debris.box(
                     kind,
@@ -211,6 +277,10 @@ def generate(seed: int, size_m: tuple[float, float] = (12.0, 8.0)) -> World:
                 rng.uniform(0, math.pi),
             )
         )
+    for k in range(int(rng.integers(2, 5))):  # racking uprights along the long walls
+        e = 0.15 if k % 2 == 0 else size_m[1] - 0.15
+        n = rng.uniform(0.5, size_m[0] - 0.5)
+        rubble.append(Debris.box("racking", _pick(rng, METAL), _r(n), _r(e), 0.09, 0.09, 0.0))
     zones = []
     for _ in range(int(rng.integers(1, 3))):
         anchor = victims[int(rng.integers(len(victims)))]

@@ -4,8 +4,8 @@
 centres at ``(i + 0.5) * res_m``):
 - ``bgrl``: uint8 (rows, cols, 4): the surface colour (BGR) and the static light
   of the light zones (0..255 = 0..100 %) in the fourth channel;
-- ``labels``: int16 (rows, cols): 1 + the index of the victim whose uncovered body
-  covers the cell, else 0 (the renderer's ground truth for "in view");
+  Victims are solid bodies drawn by the renderer's 3-D pass (scenarios.solids);
+  here each leaves only its contact shadow on the floor, darkest under the body;
 - ``pyramid``: coarser copies of ``bgrl`` (area-averaged, 2x per level) so that far,
   minified floor does not alias.
 
@@ -31,9 +31,7 @@ _SUPERSAMPLE = 4
 class FloorRaster:
     res_m: float
     bgrl: np.ndarray
-    labels: np.ndarray
     pyramid: tuple[np.ndarray, ...]  # level 0 is bgrl itself
-    victim_ids: tuple[int, ...]  # label k -> victim_ids[k - 1]
 
 
 def _to_px(poly_ne: np.ndarray, res_m: float) -> np.ndarray:
@@ -134,16 +132,17 @@ def build_raster(world: World, res_m: float = DEFAULT_RES_M) -> FloorRaster:
     rows = math.ceil(world.size_m[0] / res_m)
     cols = math.ceil(world.size_m[1] / res_m)
     img = _floor_texture(world, rng, rows, cols, res_m)
-    labels = np.zeros((rows, cols), np.int16)
-    for k, v in enumerate(world.victims, start=1):
+    shadow = np.zeros((rows, cols), np.float32)
+    for v in world.victims:
         for part in v.parts():
-            grain = 0.05 if part.role == "skin" else 0.12
-            _paint(img, part.polygon_ne_m, v.colour_of(part.role), res_m, rng, grain, 0.25)
-            cv2.fillPoly(labels, [_to_px(part.polygon_ne_m, res_m)], k, cv2.LINE_8, 4)
+            cv2.fillPoly(shadow, [_to_px(part.polygon_ne_m, res_m)], 1.0, cv2.LINE_8, 4)
+    if world.victims:
+        blur = max(1.0, 0.04 / res_m)
+        shadow = np.asarray(cv2.GaussianBlur(shadow, (0, 0), blur), np.float32)
+        img *= (1.0 - 0.6 * np.clip(shadow, 0.0, 1.0))[:, :, None]
     for d in world.debris:
         grain = 0.08 if d.kind.startswith("lookalike") else 0.16
         _paint(img, d.polygon, d.colour_rgb, res_m, rng, grain, 0.35)
-        cv2.fillPoly(labels, [_to_px(d.polygon, res_m)], 0, cv2.LINE_8, 4)
     n = (np.arange(rows, dtype=np.float32) + 0.5) * res_m
     e = (np.arange(cols, dtype=np.float32) + 0.5) * res_m
     light_small_step = max(1, round(0.05 / res_m))
@@ -163,9 +162,7 @@ def build_raster(world: World, res_m: float = DEFAULT_RES_M) -> FloorRaster:
                 interpolation=cv2.INTER_AREA,
             )
         )
-    return FloorRaster(
-        res_m, bgrl, labels, tuple(pyramid), tuple(v.victim_id for v in world.victims)
-    )
+    return FloorRaster(res_m, bgrl, tuple(pyramid))
 
 
 def top_down_bgr(raster: FloorRaster, px_per_m: float, lit: bool = True) -> np.ndarray:

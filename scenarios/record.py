@@ -28,7 +28,7 @@ from mavlink_io.convert import usec_from_unix_s
 from scenarios import autopilot as ap
 from scenarios.camera import default_camera, write_camera_toml
 from scenarios.motion import Trajectory, route_of
-from scenarios.render import Renderer, RenderOptions, encode_jpeg
+from scenarios.render import MIN_VIEW_PX, Renderer, RenderOptions, encode_jpeg
 from scenarios.world import World, save_world
 
 log = logging.getLogger(__name__)
@@ -40,7 +40,6 @@ COMPANION_RATES_HZ: dict[int, float] = {
     ap.GLOBAL_POSITION_INT: 5.0,
     ap.SIM_STATE: 10.0,
 }
-MIN_VIEW_PX = 150  # a victim counts as "seen" in a frame from this many uncovered pixels
 _PATH_STEP_S = 0.5
 
 

@@ -27,8 +27,10 @@ import numpy as np
 
 from fusion.camera import CameraModel, rotation_zyx
 from scenarios.raster import FloorRaster, build_raster
+from scenarios.solids import Solids
 from scenarios.world import World
 
+MIN_VIEW_PX = 150  # a victim counts as "seen" in a frame from this many body pixels
 _NOISE_BANK = 3
 _NOISE_MARGIN = 64
 _VOID_BGR = (18.0, 18.0, 20.0)  # above the horizon: the dark warehouse
@@ -97,6 +99,7 @@ class Renderer:
         self.camera = camera
         self.options = options or RenderOptions()
         self.raster = raster or build_raster(world)
+        self.solids = Solids(world, self.raster, camera)
         k = camera.intrinsics
         self.size = (k.width_px, k.height_px)
         u, v = np.meshgrid(np.arange(k.width_px, dtype=float), np.arange(k.height_px, dtype=float))
@@ -119,6 +122,13 @@ class Renderer:
 
     def floor_maps(self, pose: PoseLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per pixel: floor north, east and range (m; inf off the floor), and sin(grazing)."""
+        north, east, t, sin_graze, _rays, _centre, _r = self._floor_rays(pose)
+        return north, east, t, sin_graze
+
+    def _floor_rays(
+        self, pose: PoseLike
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """floor_maps, and the unit NED rays (H, W, 3), camera centre and R_ned_cam."""
         r_nb = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
         centre, r_nc = self.camera.camera_pose_ned(
             np.array([pose.north_m, pose.east_m, pose.down_m]), r_nb
@@ -141,7 +151,8 @@ class Renderer:
         east += np.float32(centre[1])
         north[~hits] = -1e6
         east[~hits] = -1e6
-        return north, east, t, np.clip(dz, 1e-4, 1.0)
+        rays = np.stack([dn, de, dz], axis=-1).astype(np.float64)  # (H, W, 3)
+        return north, east, t, np.clip(dz, 1e-4, 1.0), rays, centre, r_nc
 
     # -- rendering -----------------------------------------------------------------
 
@@ -189,7 +200,7 @@ class Renderer:
     def render(self, pose: PoseLike, *, frame_key: int | None = None) -> RenderResult:
         """A frame from the true pose. ``frame_key`` seeds its noise (default: a counter)."""
         opt = self.options
-        north, east, rng_m, sin_graze = self.floor_maps(pose)
+        north, east, rng_m, sin_graze, rays, centre, r_nc = self._floor_rays(pose)
         on_floor = np.isfinite(rng_m)
         bgrl = self._sample(north, east, rng_m, sin_graze).astype(np.float32)
         # light in 0..1: the zones' static light plus the headlight's inverse square.
@@ -197,6 +208,7 @@ class Renderer:
         light += np.float32(opt.headlight) * np.minimum(np.float32(1.0), 1.0 / np.square(rng_m))
         signal = bgrl[:, :, :3] * (light * np.float32(1.0 / 255.0))[:, :, None]
         signal[~on_floor] = np.array(_VOID_BGR, np.float32) / 255.0
+        visible = self.solids.draw(signal, rng_m, centre, r_nc, rays, opt.headlight)
         if opt.blur_sigma_px > 0:
             signal = cv2.GaussianBlur(signal, (0, 0), opt.blur_sigma_px)
         means = cv2.mean(signal)
@@ -218,24 +230,4 @@ class Renderer:
         if opt.jpeg_quality > 0:
             buf = np.frombuffer(encode_jpeg(image, opt.jpeg_quality), np.uint8)
             image = np.asarray(cv2.imdecode(buf, cv2.IMREAD_COLOR))
-        visible = self._visible_pixels(north, east, on_floor)
         return RenderResult(image, tuple(sorted(visible)), visible, gain)
-
-    def _visible_pixels(
-        self, north: np.ndarray, east: np.ndarray, on_floor: np.ndarray
-    ) -> dict[int, int]:
-        res = self.raster.res_m
-        labels = cv2.remap(
-            self.raster.labels,
-            (east / res - 0.5).astype(np.float32),
-            (north / res - 0.5).astype(np.float32),
-            cv2.INTER_NEAREST,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=0,
-        )
-        counts = np.bincount(labels[on_floor].ravel(), minlength=len(self.raster.victim_ids) + 1)
-        return {
-            vid: int(counts[k])
-            for k, vid in enumerate(self.raster.victim_ids, start=1)
-            if counts[k] > 0
-        }

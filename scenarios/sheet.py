@@ -45,9 +45,7 @@ def _pick_frames(
     times = np.arange(0.0, duration_s, _SCAN_STEP_S)
     for t in times:
         pose = traj.pose_at(float(t))
-        north, east, rng_m, _ = renderer.floor_maps(pose)
-        visible = renderer._visible_pixels(north, east, np.isfinite(rng_m))
-        for vid, px in visible.items():
+        for vid, px in renderer.render(pose).visible_px.items():
             # A victim filling the frame (the rover on top of it) is no view: cap the
             # pixel count so the earliest good approach view wins.
             px = min(px, _GOOD_VIEW_PX)

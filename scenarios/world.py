@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 
 from fusion.types import GlobalOrigin, Urgency
-from scenarios.body import Part, body_parts
+from scenarios import body3d
+from scenarios.body3d import PATTERNS, POSTURES, Pattern, Posture
 
 RGB = tuple[int, int, int]
 PointNE = tuple[float, float]
@@ -83,9 +84,12 @@ class Floor:
 
 @dataclass(frozen=True)
 class Debris:
-    """A flat piece of rubble; later pieces lie over earlier ones and over victims."""
+    """A piece of rubble: the prism over the convex hull of its polygon, from the floor
+    up to ``height_m`` (by kind). A piece that lies on a victim is a pile over it: the
+    renderer raises it above the body, so what it covers is hidden from every view."""
 
-    kind: str  # slab | piece | plank | beam | sheet | lookalike_skin | lookalike_cloth
+    kind: str  # slab | piece | plank | beam | sheet | carton | pallet | plasterboard | tarp
+    # | cable | racking | lookalike_skin | lookalike_cloth
     colour_rgb: RGB
     polygon_ne_m: tuple[PointNE, ...]
 
@@ -117,7 +121,30 @@ class Debris:
 
     @property
     def polygon(self) -> np.ndarray:
-        return np.asarray(self.polygon_ne_m, dtype=float)
+        """The convex hull of the outline (north, east), the piece's footprint."""
+        pts = np.asarray(self.polygon_ne_m, dtype=np.float32)
+        return cv2.convexHull(pts).reshape(-1, 2).astype(float)
+
+    @property
+    def height_m(self) -> float:
+        return _DEBRIS_HEIGHT_M.get(self.kind, 0.0)  # other kinds: paint on the floor
+
+
+_DEBRIS_HEIGHT_M = {
+    "slab": 0.10,
+    "piece": 0.14,
+    "plank": 0.04,
+    "beam": 0.12,
+    "sheet": 0.01,
+    "lookalike_skin": 0.03,
+    "lookalike_cloth": 0.02,
+    "carton": 0.35,
+    "pallet": 0.14,
+    "plasterboard": 0.015,
+    "tarp": 0.01,
+    "cable": 0.02,
+    "racking": 2.2,
+}
 
 
 @dataclass(frozen=True)
@@ -150,6 +177,10 @@ class Victim:
     top_rgb: RGB
     trousers_rgb: RGB
     shoes_rgb: RGB = (40, 36, 34)
+    hair_rgb: RGB = (38, 30, 24)
+    posture: Posture = "back"
+    pattern: Pattern = "plain"
+    dust: float = 0.0  # 0..1: how much of the clothes and skin is grey with dust
     left_arm_rad: float = 0.15
     right_arm_rad: float = 0.15
     leg_spread_rad: float = 0.05
@@ -163,8 +194,14 @@ class Victim:
             raise WorldError(f"{where}.victim_id must be >= 1")
         if not 1.0 <= self.height_m <= 2.2:
             raise WorldError(f"{where}.height_m = {self.height_m}: must be in [1.0, 2.2]")
-        for name in ("skin_rgb", "top_rgb", "trousers_rgb", "shoes_rgb"):
+        for name in ("skin_rgb", "top_rgb", "trousers_rgb", "shoes_rgb", "hair_rgb"):
             _check_rgb(getattr(self, name), f"{where}.{name.removesuffix('_rgb')}")
+        if self.posture not in POSTURES:
+            raise WorldError(f"{where}.posture = {self.posture!r}: one of {', '.join(POSTURES)}")
+        if self.pattern not in PATTERNS:
+            raise WorldError(f"{where}.pattern = {self.pattern!r}: one of {', '.join(PATTERNS)}")
+        if not 0.0 <= self.dust <= 1.0:
+            raise WorldError(f"{where}.dust = {self.dust}: must be in [0, 1]")
 
     @property
     def urgency(self) -> Urgency:
@@ -172,16 +209,36 @@ class Victim:
             raise WorldError(f"victim {self.victim_id}: visibility not computed (not in a World)")
         return Urgency.from_visibility(self.visibility_pct)
 
-    def parts(self) -> list[Part]:
-        return body_parts(
+    def body(self) -> body3d.Body3D:
+        """The solid body the renderer draws."""
+        return body3d.build_body(
             self.north_m,
             self.east_m,
             self.heading_rad,
             self.height_m,
+            self.posture,
             self.left_arm_rad,
             self.right_arm_rad,
             self.leg_spread_rad,
         )
+
+    def look(self) -> body3d.Look:
+        return body3d.Look(
+            self.skin_rgb,
+            self.top_rgb,
+            self.trousers_rgb,
+            self.shoes_rgb,
+            self.hair_rgb,
+            self.pattern,
+            self.dust,
+        )
+
+    def parts(self) -> list[Part]:
+        """The body's floor footprint: each solid's outline seen from straight above."""
+        return [
+            Part(name, _ROLE[material], polygon)
+            for name, material, polygon in body3d.footprint(self.body())
+        ]
 
     def colour_of(self, role: str) -> RGB:
         colours: dict[str, RGB] = {
@@ -191,6 +248,22 @@ class Victim:
             "shoes": self.shoes_rgb,
         }
         return colours[role]
+
+
+@dataclass(frozen=True)
+class Part:
+    name: str
+    role: str  # skin | top | trousers | shoes: which of the victim's colours
+    polygon_ne_m: np.ndarray  # (N, 2) north, east in metres
+
+
+_ROLE = {
+    body3d.SKIN: "skin",
+    body3d.TOP: "top",
+    body3d.TROUSERS: "trousers",
+    body3d.SHOES: "shoes",
+    body3d.HAIR: "skin",
+}
 
 
 def _fill(mask: np.ndarray, poly_ne: np.ndarray, n0: float, e0: float, res: float) -> None:

@@ -13,7 +13,8 @@
     [[debris]] kind, colour, polygon_ne_m = [[n, e], ...]
     [[light_zones]] north_m, east_m, radius_m, light, edge_m
     [[victims]] victim_id, north_m, east_m, heading_deg, height_m, skin, top,
-                trousers, shoes, left_arm_deg, right_arm_deg, leg_spread_deg
+                trousers, shoes, hair, posture, pattern, dust, left_arm_deg,
+                right_arm_deg, leg_spread_deg
 
 ``visibility_pct`` and ``urgency`` are written into [[victims]] for people to read
 and are recomputed (not trusted) on load. Unknown keys are errors.
@@ -64,6 +65,10 @@ _VICTIM_KEYS = {
     "top",
     "trousers",
     "shoes",
+    "hair",
+    "posture",
+    "pattern",
+    "dust",
     "left_arm_deg",
     "right_arm_deg",
     "leg_spread_deg",
@@ -173,6 +178,10 @@ def _victim(t: _Table) -> Victim:
         top_rgb=t.colour("top"),
         trousers_rgb=t.colour("trousers"),
         shoes_rgb=t.colour("shoes", "#282422"),
+        hair_rgb=t.colour("hair", "#261e18"),
+        posture=t.text("posture", "back"),  # type: ignore[arg-type]  # checked by Victim
+        pattern=t.text("pattern", "plain"),  # type: ignore[arg-type]
+        dust=t.num("dust", 0.0),
         left_arm_rad=math.radians(t.num("left_arm_deg", 9.0)),
         right_arm_rad=math.radians(t.num("right_arm_deg", 9.0)),
         leg_spread_rad=math.radians(t.num("leg_spread_deg", 3.0)),
@@ -320,6 +329,10 @@ def world_to_toml(world: World) -> str:
             f'top = "{hex_from_rgb(v.top_rgb)}"',
             f'trousers = "{hex_from_rgb(v.trousers_rgb)}"',
             f'shoes = "{hex_from_rgb(v.shoes_rgb)}"',
+            f'hair = "{hex_from_rgb(v.hair_rgb)}"',
+            f'posture = "{v.posture}"',
+            f'pattern = "{v.pattern}"',
+            f"dust = {_f(v.dust)}",
             f"left_arm_deg = {_deg(v.left_arm_rad)}",
             f"right_arm_deg = {_deg(v.right_arm_rad)}",
             f"leg_spread_deg = {_deg(v.leg_spread_rad)}",

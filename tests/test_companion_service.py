@@ -20,7 +20,6 @@ from conftest import NotifySocket
 
 from companion.config import load_config
 from companion.replay import replay, result_document
-from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.world import preset
@@ -64,7 +63,6 @@ reopen_max_backoff_s = 0.5
 state_dir = "{tmp_path / "state"}"
 record_frames = {str(record_frames).lower()}
 """
-        + SIM_DETECTOR_TOML
     )
     return cfg
 
@@ -121,6 +119,7 @@ def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
 ) -> None:
     ground.acking.set()
     cfg = _config(tmp_path, sim, record_frames=True)
+    rendered_0, t_0 = sim.camera.frames_rendered, time.monotonic()
     proc = _start(cfg, tmp_path / "companion.log", "--debug-processing-delay-s", "0.7")
     try:
         # Our heartbeat reaches the ground through the rover: onboard controller, vehicle sysid.
@@ -132,15 +131,14 @@ def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
         # A whole victim report arrives (inside TUNNEL) although each frame takes 0.7 s more.
         report = ground.wait_for(lambda m: m.get_type() == "RESCUE_VICTIM_REPORT", 60.0)
         assert report.flags & FLAG_NEW and report.robot_sysid == 1
-        # People are told too: a STATUSTEXT naming the victim, and a point on QGC's
-        # map (CAMERA_IMAGE_CAPTURED, capture_result 1) at the victim's lat/lon.
+        # People are told too: a STATUSTEXT naming the victim. No CAMERA_IMAGE_CAPTURED:
+        # QGC draws it as an unlabelled photo icon, not a victim (the HQ's SBS-1 feed
+        # puts labelled victims on QGC's map from the report's lat/lon).
         ground.wait_for(
             lambda m: m.get_type() == "STATUSTEXT" and "victim" in str(m.text).lower(), 10.0
         )
-        marker = ground.wait_for(lambda m: m.get_type() == "CAMERA_IMAGE_CAPTURED", 10.0)
-        assert marker.capture_result == 1 and marker.image_index == report.victim_id
-        assert marker.lat / 1e7 == pytest.approx(sim.world.origin.lat_deg, abs=2e-4)  # ~20 m
-        assert (marker.lat, marker.lon) == (report.lat, report.lon)
+        assert report.lat / 1e7 == pytest.approx(sim.world.origin.lat_deg, abs=2e-4)  # ~20 m
+        assert not [m for _, m in ground.received() if m.get_type() == "CAMERA_IMAGE_CAPTURED"]
         # Heartbeats keep their 1 Hz while processing lags, and the drops are reported.
         window_start = time.monotonic()
         status = ground.wait_for(
@@ -155,13 +153,16 @@ def test_reports_a_victim_and_heartbeats_while_processing_is_slow(
         assert status.fps < 2.0
     finally:
         assert _stop(proc) == 0, (tmp_path / "companion.log").read_text()[-3000:]
+    camera_fps = (sim.camera.frames_rendered - rendered_0) / (time.monotonic() - t_0)
     # The mission was recorded (every frame, though processing dropped most): the
     # offline replay of the service's own tlog and frames finds the victim again.
     (tlog,) = (tmp_path / "state" / "tlogs").glob("*.tlog")
     (frames,) = (tmp_path / "state" / "frames").iterdir()
     stamps_s = sorted(int(f.stem) / 1e6 for f in frames.iterdir())
-    # The camera runs at 10 fps; processing managed under 2: the recording kept up.
-    assert len(stamps_s) >= 0.8 * 10.0 * (stamps_s[-1] - stamps_s[0]) and len(stamps_s) >= 30
+    # The camera delivers up to 10 fps (what the simulator renders on this machine);
+    # processing managed under 2: the recording kept up with the camera.
+    assert len(stamps_s) >= 0.8 * camera_fps * (stamps_s[-1] - stamps_s[0])
+    assert len(stamps_s) >= 30
     doc = result_document(replay(load_config(cfg), tlog, frames))
     # Frames before the first pose arrived have none: a second or so of a short run.
     assert doc["frames"] == len(stamps_s) and doc["frames_without_pose"] < 0.5 * doc["frames"]
@@ -270,11 +271,12 @@ def test_survives_camera_loss_and_link_loss_and_says_so(
     proc = _start(_config(tmp_path, sim), tmp_path / "companion.log")
     try:
         ground.wait_for(lambda m: m.get_type() == "RESCUE_STATUS" and m.flags & 2, 30.0)  # CAMERA
-        # The camera disappears: people are told, the health flag drops, heartbeats go on.
+        # The camera disappears: people are told (which robot), the health flag drops,
+        # heartbeats go on.
         sim.camera.close()
         lost = time.monotonic()
         ground.wait_for(
-            lambda m: m.get_type() == "STATUSTEXT" and "Camera lost" in str(m.text),
+            lambda m: m.get_type() == "STATUSTEXT" and "R1 camera lost" in str(m.text),
             15.0,
             since_s=lost,
         )

@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 from test_hq_e2e import HqProcess, start_hq  # noqa: F401  (the fixture)
 
-from scenarios.camera import SIM_DETECTOR_TOML
 from scenarios.live import LiveSim
 from scenarios.world import preset
 
@@ -32,7 +31,7 @@ def test_direct_link_report_ack_and_operator_mark(
             f'[vehicle]\nurl = "{sim.vehicle_url}"\n'
             f'[hq]\nurl = "udpout:127.0.0.1:{hq.port}"\ntunnel = false\nresend_initial_s = 0.5\n'
             f'[camera]\nsource = "{sim.camera_source}"\n'
-            f'[paths]\nstate_dir = "{tmp_path / "state"}"\n' + SIM_DETECTOR_TOML
+            f'[paths]\nstate_dir = "{tmp_path / "state"}"\n'
         )
         log = tmp_path / "companion.log"
         with log.open("wb") as out:
@@ -61,14 +60,30 @@ def test_direct_link_report_ack_and_operator_mark(
                 )
                 if "RESCUED" in line:
                     break
+            # The operator changes their mind (the console's Confirm): the robot reopens it.
+            mark = subprocess.run(
+                [
+                    sys.executable, "-m", "hq.cli", "mark", "--db", str(hq.db),
+                    "--robot", "1", "--victim", str(victim_id), "--confirmed",
+                ],
+                capture_output=True, text=True, timeout=60,
+            )  # fmt: skip
+            assert mark.returncode == 0, mark.stderr
+            while True:
+                line = hq.wait_line(
+                    f"report robot 1 victim {victim_id} seq", deadline - time.monotonic()
+                )
+                if "CONFIRMED" in line:
+                    break
         finally:
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(timeout=15) == 0, log.read_text()[-3000:]
     text = log.read_text()
     assert f"operator marked victim {victim_id} RESCUED" in text
+    assert f"operator marked victim {victim_id} CONFIRMED" in text
     # Every report was acknowledged over the direct link: nothing left to resend.
     listing = subprocess.run(
         [sys.executable, "-m", "hq.cli", "list", "--db", str(hq.db)],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
-    assert "RESCUED" in listing.stdout
+    assert "CONFIRMED" in listing.stdout

@@ -41,7 +41,7 @@ def test_defaults_need_no_file() -> None:
 def test_example_config_loads_and_sets_every_section(tmp_path: Path) -> None:
     config = load_config(EXAMPLE)
     assert config.vehicle.url == "serial:/dev/ttyAMA0:921600"
-    assert config.camera.mount.pitch_deg == -25.0
+    assert config.camera.mount.pitch_deg == -12.0
 
 
 def test_docs_and_example_cover_every_key() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -226,8 +227,23 @@ def test_expected_body_area_top_down_is_exact() -> None:
     camera = CameraModel(Intrinsics.from_fov(640, 480, 70.0), Mount(pitch_rad=-math.pi / 2))
     pose = _pose(north_m=0.0, east_m=0.0, down_m=0.0, yaw_rad=0.3)
     k = camera.intrinsics
-    area = expected_body_area_px(camera, pose, 0.0, 0.0, GeolocationParams(floor_down_m=2.0))
+    flat = GeolocationParams(floor_down_m=2.0, body_height_m=0.0)
+    area = expected_body_area_px(camera, pose, 0.0, 0.0, flat)
     assert area == pytest.approx(k.fx_px * k.fy_px * 1.7 * 0.45 / 4.0, rel=1e-9)
+    # A body 0.22 m thick: its top is 1.78 m from the camera, seen larger by (2/1.78)^2.
+    thick = GeolocationParams(floor_down_m=2.0, body_height_m=0.22)
+    area = expected_body_area_px(camera, pose, 0.0, 0.0, thick)
+    assert area == pytest.approx(k.fx_px * k.fy_px * 1.7 * 0.45 / 1.78**2, rel=1e-9)
+
+
+def test_from_a_low_camera_a_lying_body_shows_its_side() -> None:
+    # 0.3 m up, looking level: the footprint is a thin sliver, the 0.22 m side is not.
+    camera = _camera(0.0)
+    pose = _pose(north_m=0.0, east_m=0.0, down_m=0.0)
+    low = GeolocationParams(floor_down_m=0.3)
+    flat = expected_body_area_px(camera, pose, 3.0, 0.0, dataclasses.replace(low, body_height_m=0))
+    thick = expected_body_area_px(camera, pose, 3.0, 0.0, low)
+    assert thick > 2.0 * flat
 
 
 def test_expected_body_area_shrinks_with_range_and_is_clipped_near() -> None:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import sqlite3
 import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,13 +16,8 @@ from fusion.geodesy import ned_to_geodetic
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
 from hq import export, merge, table
 from hq.merge import Placed
-from hq.registry import (
-    IncomingReport,
-    OperatorAction,
-    Registry,
-    RegistryError,
-    StoreResult,
-)
+from hq.records import IncomingReport, OperatorAction, StoreResult
+from hq.registry import Registry, RegistryError
 from hq.view import hq_victims
 
 ORIGIN = GlobalOrigin(47.397742, 8.545594, 488.0)
@@ -148,7 +145,7 @@ def test_actions_need_a_known_victim_and_count_as_pending(tmp_path: Path) -> Non
         seq = reg.add_action(3, 4, OperatorAction.FALSE_ALARM)
         (v,) = hq_victims(reg)
         assert (v.state, v.actions_pending) == (TrackState.FALSE_ALARM, 1)
-        assert reg.ack_action(seq, 1.0) and not reg.ack_action(seq, 2.0)
+        assert reg.ack_action(seq, 1.0, 0) and not reg.ack_action(seq, 2.0, 0)
         assert hq_victims(reg)[0].actions_pending == 0
 
 
@@ -174,7 +171,7 @@ def test_exports_hold_every_placed_victim(tmp_path: Path) -> None:
             ]
         )
         victims = hq_victims(reg)
-    result = export.export_all(victims, tmp_path / "out", ORIGIN)
+    result = export.export_all(victims, tmp_path / "out")
     assert (result.placed, result.local_only) == (2, 0)
     geo = json.loads((tmp_path / "out" / export.GEOJSON_NAME).read_text())
     coords = np.array([f["geometry"]["coordinates"][:2] for f in geo["features"]])
@@ -183,15 +180,23 @@ def test_exports_hold_every_placed_victim(tmp_path: Path) -> None:
     assert sorted(coords[:, 1]) == pytest.approx([lat0, lat20], abs=1e-9)
     root = ET.parse(tmp_path / "out" / export.KML_NAME).getroot()
     assert len(root.findall(".//{http://www.opengis.net/kml/2.2}Placemark")) == 2
-    plan = json.loads((tmp_path / "out" / export.PLAN_NAME).read_text())
-    assert len(plan["rallyPoints"]["points"]) == 2
+    with (tmp_path / "out" / export.CSV_NAME).open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["urgency"] for r in rows] == ["CRITICAL", "LIGHT"]  # most urgent first
+    assert float(rows[0]["lat_deg"]) == pytest.approx(lat0, abs=1e-8)
+    # No QGC .plan: uploading one replaces the vehicle's mission, fence and rally
+    # points, and RTL would drive the rover to a victim.
+    assert sorted(p.name for p in result.written) == sorted(
+        [export.GEOJSON_NAME, export.KML_NAME, export.CSV_NAME]
+    )
+    assert not list((tmp_path / "out").glob("*.plan"))
 
 
 def test_victims_without_lat_lon_or_origin_stay_out_of_the_files(tmp_path: Path) -> None:
     with Registry(tmp_path / "r.sqlite") as reg:
         reg.store_reports([incoming(report(1, 1, 0.0, 0.0), 1)])
         victims = hq_victims(reg)
-    result = export.export_all(victims, tmp_path, None)
+    result = export.export_all(victims, tmp_path)
     assert (result.placed, result.local_only) == (0, 1)
     assert json.loads((tmp_path / export.GEOJSON_NAME).read_text())["features"] == []
 
@@ -207,3 +212,32 @@ def test_table_colours_only_on_a_terminal(tmp_path: Path) -> None:
     assert "CRITICAL" in plain and "1:1" in plain and "2m05s" in plain
     coloured = table.render(header, victims, robots, now, colour=True)
     assert "\x1b[1;97;41mCRITICAL" in coloured  # red
+
+
+def test_newer_report_wins_by_sequence_even_when_the_robot_clock_stepped_back(
+    tmp_path: Path,
+) -> None:
+    # The robot's clock was corrected an hour back between two reports: report_seq,
+    # not the wall clock, says which is newer.
+    with Registry(tmp_path / "r.sqlite") as reg:
+        t = 1_700_000_000_000_000
+        first = incoming(report(1, 1, 0.0, 0.0, urgency=Urgency.LIGHT), 11, t_usec=t)
+        after_step = incoming(
+            report(1, 1, 0.2, 0.0, urgency=Urgency.CRITICAL), 12, t_usec=t - 3_600_000_000
+        )
+        assert reg.store_reports([first]) == [StoreResult.ACCEPTED]
+        assert reg.store_reports([after_step]) == [StoreResult.ACCEPTED]
+        (src,) = reg.sources()
+        assert (src.report_seq, src.report.urgency) == (12, Urgency.CRITICAL)
+        late = incoming(report(1, 1, 9.0, 0.0), 10, t_usec=t + 10_000_000)  # older seq, later clock
+        assert reg.store_reports([late]) == [StoreResult.STALE]
+
+
+def test_table_says_what_the_visibility_number_is(tmp_path: Path) -> None:
+    with Registry(tmp_path / "r.sqlite") as reg:
+        r = report(1, 1, 0.0, 0.0, urgency=Urgency.LIGHT)
+        reg.store_reports([incoming(replace(r, visibility_pct=48.0), 1)])
+        victims = hq_victims(reg)
+    text = table.render(table.Header(245, ["udp"], 1, False), victims, [], 0.0, colour=False)
+    head, row = text.splitlines()[2:4]
+    assert "VISIBLE" in head and "LIGHT" in row and "48%" in row

@@ -12,7 +12,7 @@ import pytest
 from pymavlink import mavutil
 
 from fusion.types import TrackState, Urgency, VictimReport
-from mavlink_io import convert, statustext, tunnel
+from mavlink_io import convert, tunnel
 from mavlink_io.codec import Codec
 from mavlink_io.errors import SigningError
 from mavlink_io.reliable import Deduplicator, Outbox
@@ -86,41 +86,6 @@ def test_signed_state_changes_accepted_unsigned_and_forged_rejected() -> None:
     frame = robot.encode(m.MAVLink_rescue_status_message(1, 10.0, 0.0, 20.0, 1, 1, 0, 0))
     assert frame[2] & 0x01
     assert [x.get_type() for x in hq_signed.feed(frame)] == ["RESCUE_STATUS"]
-
-
-# ----------------------------------------------------------------- STATUSTEXT / marker
-
-
-def test_statustext_severity_text_and_chunks() -> None:
-    assert statustext.victim_text(report()) == "CRITICAL victim #3 at N12.3 E4.5 (8%)"
-    long = statustext.victim_text(report(victim_id=4294967295, north_m=-12345.6, east_m=-9999.9))
-    assert len(long) <= 50 and "#4294967295" in long
-    (msg,) = statustext.victim_statustext(report())
-    assert msg.severity == statustext.MAV_SEVERITY_CRITICAL
-    assert statustext.severity_for(Urgency.MEDIUM) == 4
-    assert statustext.severity_for(Urgency.LIGHT) == 5
-    ids = statustext.ChunkIds()
-    chunks = statustext.statustext_msgs("A" * 100, 4, ids)
-    assert [(c.id, c.chunk_seq, len(c.text)) for c in chunks] == [(1, 0, 50), (1, 1, 50), (1, 2, 0)]
-    again = statustext.statustext_msgs("B" * 60, 4, ids)
-    assert {c.id for c in again} == {2}
-    tx, rx = Codec(7, 191), Codec(255, 190)
-    text = "".join(x.text for x in rx.feed(b"".join(tx.encode(c) for c in again)))
-    assert text == "B" * 60
-
-
-def test_marker_only_with_global_position() -> None:
-    assert convert.victim_marker_msg(report(), 10.0, 1.7e9) is None
-    glob = report(lat_deg=48.1234567, lon_deg=-124.5, alt_m=12.3)
-    marker = convert.victim_marker_msg(glob, 10.0, 1.7e9, origin_alt_m=10.0)
-    assert marker is not None
-    assert (marker.lat, marker.lon, marker.alt, marker.relative_alt) == (
-        481234567,
-        -1245000000,
-        12300,
-        2300,
-    )
-    assert marker.capture_result == 1 and marker.image_index == 3
 
 
 def test_victim_report_roundtrip_si_units() -> None:

@@ -23,7 +23,7 @@ from mavlink_io import convert
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.link import UdpInLink, UdpOutLink
 from mavlink_io.vehicle import VehicleLink, VehicleSettings
-from tests.mavfuzz import random_message
+from tests.fieldfuzz import random_message
 
 SYSID = 7
 SEED = int(os.environ.get("FUZZ_SEED", "16"))

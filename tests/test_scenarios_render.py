@@ -114,12 +114,14 @@ def test_buried_parts_do_not_count_as_in_view() -> None:
     world = preset("critical")
     (v,) = world.victims
     renderer = Renderer(world)
-    facing = math.atan2(v.east_m - 3.2, v.north_m - 4.0)
-    res = renderer.render(_pose(4.0, 3.2, math.degrees(facing)))
+    # From 1.5 m beyond the exposed part (a hand), looking back at it over the pile.
+    out = math.atan2(v.visible_east_m - v.east_m, v.visible_north_m - v.north_m)
+    n = v.visible_north_m + 1.5 * math.cos(out)
+    e = v.visible_east_m + 1.5 * math.sin(out)
+    pose = _pose(n, e, math.degrees(out + math.pi))
+    res = renderer.render(pose)
     # The same victim uncovered shows many more pixels from the same place.
-    bare = Renderer(dataclasses.replace(world, debris=())).render(
-        _pose(4.0, 3.2, math.degrees(facing))
-    )
+    bare = Renderer(dataclasses.replace(world, debris=())).render(pose)
     assert 0 < res.visible_px.get(v.victim_id, 0) < 0.2 * bare.visible_px[v.victim_id]
 
 

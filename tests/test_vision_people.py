@@ -29,7 +29,7 @@ from scenarios.camera import default_camera
 
 @pytest.fixture(scope="module")
 def detector() -> PeopleDetector:
-    return PeopleDetector(PeopleParams(turned_every_frames=1), None, 0.5)
+    return PeopleDetector(PeopleParams(extra_passes=99), None, 0.5)
 
 
 def _falls(shared_data: Path) -> tuple[Path, dict[str, dict[str, object]]]:
@@ -162,13 +162,24 @@ def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
         assert detector.detect(frame, None, 0.0) == []
 
 
-def test_live_detector_spreads_turned_passes_over_frames() -> None:
+def test_live_detector_spreads_extra_passes_over_frames() -> None:
     live = make_detector(DetectorConfig(backend="people"))
     single = make_detector(DetectorConfig(backend="people"), single_images=True)
     assert isinstance(live, PeopleDetector) and isinstance(single, PeopleDetector)
-    assert live.params.turned_every_frames == 2 and single.params.turned_every_frames == 1
-    turns = [len(live._passes()) for _ in range(4)]
-    assert turns == [2, 1, 2, 1] or turns == [1, 2, 1, 2]
+    geometry, _camera, _pose, _params = _geometry()
+    # A photo: the whole frame and both turned passes, no tiles (no geometry).
+    assert len(single._passes(None, 640, 480)) == 3
+    # Live, with the rover's geometry: the whole frame plus one extra pass per frame,
+    # taking turns over the turned frames and the tiles of the far floor band.
+    views = [live._passes(geometry, 640, 480) for _ in range(12)]
+    assert all(len(v) == 2 and v[0].turn is None and v[0].tile is None for v in views)
+    extras = {v[1] for v in views}
+    tiles = [x.tile for x in extras if x.tile is not None]
+    assert {x.turn for x in extras} >= {cv2.ROTATE_90_CLOCKWISE, cv2.ROTATE_90_COUNTERCLOCKWISE}
+    assert len(tiles) >= 2
+    for x0, y0, x1, y1 in tiles:
+        assert x1 - x0 == 2 * (y1 - y0) and 0 <= x0 < x1 <= 640 and 0 <= y0 < y1 <= 480
+    assert min(t[0] for t in tiles) == 0 and max(t[2] for t in tiles) == 640
 
 
 # -- geometry: where a body lies -----------------------------------------------------

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Installs the Debian/Raspberry Pi OS packages the project needs, only when missing:
 #  - python3-venv: `python3 -m venv` (Debian splits ensurepip out of python3);
-#  - systemd: systemd-analyze, which the tests use to verify the unit file.
+#  - systemd: systemd-analyze, which the tests use to verify the unit file;
+#  - chromium, chromium-driver: the headless browser the rescue-hq console tests
+#    drive (tests/test_hq_web_browser.py); no browser is downloaded from elsewhere.
 # Needs root (or sudo) only when something is actually missing.
 set -euo pipefail
 missing=()
@@ -10,6 +12,12 @@ if ! python3 -c 'import ensurepip, venv' >/dev/null 2>&1; then
 fi
 if ! command -v systemd-analyze >/dev/null 2>&1; then
     missing+=(systemd)
+fi
+if ! command -v chromium >/dev/null 2>&1; then
+    missing+=(chromium)
+fi
+if ! command -v chromedriver >/dev/null 2>&1; then
+    missing+=(chromium-driver)
 fi
 if [ ${#missing[@]} -eq 0 ]; then
     exit 0

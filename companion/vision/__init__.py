@@ -50,7 +50,7 @@ def make_detector(config: DetectorConfig, single_images: bool = False) -> Detect
         return PeopleDetector(
             PeopleParams(
                 silhouette_fill=config.body_silhouette_fill,
-                turned_every_frames=1 if single_images else PeopleParams.turned_every_frames,
+                extra_passes=99 if single_images else PeopleParams.extra_passes,
             ),
             enhancer,
             config.min_score,

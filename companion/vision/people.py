@@ -76,21 +76,40 @@ class PeopleParams:
     part_support_score: float = 0.5  # a face or palm that supports a body
     mask_threshold: float = 0.5
     max_bodies: int = 4  # landmark crops per frame (each ~10 ms on one core)
-    # The person detector is trained on mostly upright people; a body lying across
-    # the view is found more often in the frame turned by 90 degrees. Each turned
-    # pass costs one more detector run (~10 ms). ``turned_every_frames``: 1 runs both
-    # (clockwise, anticlockwise) on every frame, as for a single photo; n >= 2 runs
-    # one of them on every n-th frame, taking turns (a live camera sees a body on
-    # many frames); 0 never.
-    turned_every_frames: int = 2
+    # Extra detector passes, ~10 ms each. The person detector sees the whole frame at
+    # 224 px and is trained on mostly upright people: a body lying across the view is
+    # found more often in the frame turned by 90 degrees (clockwise, anticlockwise),
+    # and a body far along the floor (from a low rover camera, a thin strip near the
+    # horizon) only in a zoomed tile of that band of the frame. ``extra_passes``: how
+    # many of those run per frame, taking turns (a live camera sees a body on many
+    # frames); a large number runs all of them on every frame, as for a single photo.
+    extra_passes: int = 1
+    far_tiles: bool = True  # tiles of the far floor band (needs the frame's geometry)
+    far_band_mpp: float = 0.0045  # floor farther than this many metres per pixel
+    tile_min_px: int = 160  # a tile's height at least; its width is twice its height
     joint_height_m: float = 0.10  # a lying adult's joints above the floor
-    standing_hip_shoulder_m: float = 1.0  # farther apart on the joint plane: standing
+    contact_height_m: float = 0.03  # where a lying body's near side leaves the floor
+    body_width_m: float = 0.35  # a lying adult across the view (shoulders, hips)
+    max_half_extent_m: float = 0.9  # half a lying adult's length
+    joint_span_m: float = 1.45  # nose to ankles of a lying adult
+    landmark_seen: float = 0.5  # a landmark counts as in sight from this visibility
+    standing_height_m: float = 1.0  # nose this far above the ankles: standing
     silhouette_fill: float = 0.75  # body silhouette / length x width rectangle
     # The models see better on the enhanced frame only when the scene is dark (on
     # well-lit real frames enhancement costs recall: bench/real_images.py).
     enhance_below_luma: float = 0.25
     lone_person_weight: float = 0.75  # a person detection no other cue supports
     min_part_mask_share: float = 0.2  # a lone part's box covered by the person mask for "mask"
+    attached_body_share: float = 6.0  # person mask around a part this many boxes: a body
+
+
+@dataclass(frozen=True)
+class _View:
+    """Where the person detector looks: the frame or a tile (x0, y0, x1, y1) of it,
+    turned by ``cv2.ROTATE_*`` or not."""
+
+    turn: int | None
+    tile: tuple[int, int, int, int] | None
 
 
 @dataclass
@@ -104,6 +123,12 @@ class _Body:
     box: tuple[float, float, float, float]  # x0, y0, x1, y1
     part: str = ""  # "face" / "hand" for a lone part
     part_extent_px: float = 0.0  # the part's size, for a body's extent in a photo
+    seen: np.ndarray | None = None  # (33,) each landmark's visibility, 0..1
+
+
+def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
+    ys, xs = np.nonzero(mask)
+    return float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)
 
 
 def _mean_luma(image_bgr: np.ndarray) -> float:
@@ -140,7 +165,7 @@ class PeopleDetector:
         self._segment = Model(models.model_path("selfie_segmentation_landscape.tflite", model_dir))
         self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir))
         self._face = Model(models.model_path("face_detection_full_range.tflite", model_dir))
-        self._frame = 0  # frames seen, for the turned passes' turns
+        self._frame = 0  # extra passes run, for their turns
         self._anchors = {
             "pose": ssd.anchors(POSE_SPEC),
             "palm": ssd.anchors(PALM_SPEC),
@@ -161,38 +186,73 @@ class PeopleDetector:
             out.append((d, box, lb.to_image(d.keypoints)))
         return out
 
-    def _passes(self) -> list[int | None]:
-        every = self.params.turned_every_frames
-        if every == 1:
-            return [None, cv2.ROTATE_90_CLOCKWISE, cv2.ROTATE_90_COUNTERCLOCKWISE]
-        if every <= 0:
-            return [None]
-        self._frame += 1
-        if self._frame % every:
-            return [None]
-        turn = (self._frame // every) % 2
-        return [None, (cv2.ROTATE_90_CLOCKWISE, cv2.ROTATE_90_COUNTERCLOCKWISE)[turn]]
+    def _passes(self, geometry: FrameGeometry | None, w: int, h: int) -> list[_View]:
+        """The views this frame is searched in: the whole frame, then extra passes."""
+        p = self.params
+        extras: list[_View] = [
+            _View(cv2.ROTATE_90_CLOCKWISE, None),
+            _View(cv2.ROTATE_90_COUNTERCLOCKWISE, None),
+        ]
+        if p.far_tiles and geometry is not None:
+            extras += [_View(None, t) for t in self._far_tiles(geometry, w, h)]
+        if p.extra_passes >= len(extras):
+            return [_View(None, None), *extras]
+        chosen = []
+        for _ in range(max(0, p.extra_passes)):
+            chosen.append(extras[self._frame % len(extras)])
+            self._frame += 1
+        return [_View(None, None), *chosen]
+
+    def _far_tiles(
+        self, geometry: FrameGeometry, w: int, h: int
+    ) -> list[tuple[int, int, int, int]]:
+        """Overlapping tiles (x0, y0, x1, y1), twice as wide as high, over the band of
+        rows whose floor lies farther than ``far_band_mpp`` (where a lying body is a
+        thin strip the whole-frame pass cannot resolve)."""
+        p = self.params
+        rows = [
+            v
+            for v in range(4, h, 8)
+            if (m := geometry.metres_per_px(w / 2, v)) is not None and m >= p.far_band_mpp
+        ]
+        if not rows:
+            return []
+        bottom = min(h, max(rows) + 8)
+        height = min(h, max(p.tile_min_px, 2 * (bottom - min(rows))))
+        top = max(0, bottom - height)  # the band, and room above it for a body's height
+        width = min(w, 2 * height)
+        n = max(1, math.ceil((w - width) / (0.5 * width)) + 1)
+        step = (w - width) / (n - 1) if n > 1 else 0.0
+        return [(round(i * step), top, round(i * step) + width, top + height) for i in range(n)]
 
     def _persons(
-        self, rgb: np.ndarray, turn: int | None
+        self, rgb: np.ndarray, view: _View
     ) -> list[tuple[ssd.SsdDetection, np.ndarray, np.ndarray]]:
-        """Person detections (box and keypoints in frame pixels) on the frame as it is
-        or turned by 90 degrees (``cv2.ROTATE_*``)."""
-        image = rgb if turn is None else cv2.rotate(rgb, turn)
+        """Person detections (box and keypoints in frame pixels) in one view: the frame
+        or a tile of it, as it is or turned by 90 degrees (``cv2.ROTATE_*``)."""
+        x0, y0 = 0, 0
+        image = rgb
+        if view.tile is not None:
+            x0, y0, x1, y1 = view.tile
+            image = np.ascontiguousarray(rgb[y0:y1, x0:x1])
+        turn = view.turn
+        if turn is not None:
+            image = cv2.rotate(image, turn)
         found = [
             x
             for x in self._ssd(self._pose, POSE_SPEC, "pose", image, -1.0)
             if x[0].score >= self.params.person_min_score
         ]
-        if turn is None:
-            return found
-        h, w = rgb.shape[:2]
+        h, w = image.shape[:2] if turn is None else image.shape[1::-1]
+        offset = np.array([x0, y0], np.float64)
 
         def back(xy: np.ndarray) -> np.ndarray:
             xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
             if turn == cv2.ROTATE_90_CLOCKWISE:  # (x', y') = (h - 1 - y, x)
-                return np.column_stack([xy[:, 1], h - 1 - xy[:, 0]])
-            return np.column_stack([w - 1 - xy[:, 1], xy[:, 0]])  # anticlockwise
+                xy = np.column_stack([xy[:, 1], h - 1 - xy[:, 0]])
+            elif turn == cv2.ROTATE_90_COUNTERCLOCKWISE:
+                xy = np.column_stack([w - 1 - xy[:, 1], xy[:, 0]])
+            return xy + offset
 
         out = []
         for d, box, kp in found:
@@ -217,13 +277,15 @@ class PeopleDetector:
         flag = float(out[1].reshape(-1)[0])
         region = rect.paste(np.ones((LANDMARK_PX, LANDMARK_PX), np.uint8), hw)
         cues = {"person"}
-        points = None
+        points = seen = None
         if flag >= p.landmark_min_flag:
             cues.add("landmarks")
-            points = rect.to_image(out[0].reshape(-1, 5)[:N_BODY_POINTS, :2], LANDMARK_PX)
+            raw = out[0].reshape(-1, 5)[:N_BODY_POINTS]
+            points = rect.to_image(raw[:, :2], LANDMARK_PX)
+            seen = 1.0 / (1.0 + np.exp(-np.clip(raw[:, 3], -30, 30)))
             lm_logit = out[2][..., 0]
             lm_prob = rect.paste(1.0 / (1.0 + np.exp(-np.clip(lm_logit, -30, 30))), hw)
-            mask = (lm_prob > p.mask_threshold) | ((seg > p.mask_threshold) & (region > 0))
+            mask = lm_prob > p.mask_threshold
         else:
             mask = (seg > p.mask_threshold) & (region > 0)
         if mask.any():
@@ -239,7 +301,7 @@ class PeopleDetector:
         combined = score if points is None else 1.0 - (1.0 - score) * (1.0 - 0.5 * flag)
         if cues == {"person"}:
             combined *= p.lone_person_weight  # the detector alone fires on empty rooms
-        return _Body(combined, cues, region, mask, points, kp[0], (x0, y0, x1, y1))
+        return _Body(combined, cues, region, mask, points, kp[0], (x0, y0, x1, y1), seen=seen)
 
     # -- fusion ---------------------------------------------------------------
 
@@ -253,8 +315,8 @@ class PeopleDetector:
         h, w = rgb.shape[:2]
         seg = self._segmentation(rgb)
         bodies: list[_Body] = []
-        for turn in self._passes():
-            for d, box, kp in self._persons(rgb, turn):
+        for view in self._passes(geometry, w, h):
+            for d, box, kp in self._persons(rgb, view):
                 if len(bodies) >= p.max_bodies:
                     break
                 hx = int(np.clip(kp[0, 0], 0, w - 1))
@@ -295,47 +357,152 @@ class PeopleDetector:
         box_area = max(1.0, (x1 - x0) * (y1 - y0))
         if mask.sum() >= self.params.min_part_mask_share * box_area:
             cues.add("mask")
+            body = self._attached_body(seg, mask, box_area)
+            if body is not None:
+                # The part belongs to a body the person detector missed (too near, cut
+                # by the frame): the body is what is visible, not the part alone.
+                bx0, by0, bx1, by1 = _bbox(body)
+                return _Body(
+                    score, cues, body.astype(np.uint8), body, None,
+                    np.array([(bx0 + bx1) / 2, (by0 + by1) / 2]), (bx0, by0, bx1, by1),
+                )  # fmt: skip
         else:
             mask = region > 0  # the part's box is what is seen of it
         extent = max(x1 - x0, y1 - y0)
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
         return _Body(score, cues, region, mask, None, centre, (x0, y0, x1, y1), kind, extent)
 
+    def _attached_body(
+        self, seg: np.ndarray, part_mask: np.ndarray, box_area: float
+    ) -> np.ndarray | None:
+        """The person-mask region connected to a part, when it is much larger than the
+        part (an arm and more, not a hand alone); else None."""
+        person = (seg > self.params.mask_threshold).astype(np.uint8)
+        _n, labels = cv2.connectedComponents(person, connectivity=8)
+        ids = np.unique(labels[part_mask])
+        ids = ids[ids > 0]
+        if len(ids) == 0:
+            return None
+        body = np.isin(labels, ids)
+        if body.sum() < self.params.attached_body_share * box_area:
+            return None
+        return body
+
     def _floor_pixel(
         self, b: _Body, geometry: FrameGeometry | None, w: int, h: int
-    ) -> tuple[float, float]:
-        """The pixel of the body's floor point (see the module docstring)."""
+    ) -> tuple[float, float, float | None]:
+        """The pixel of the body's floor point (see the module docstring), and the
+        body's heading (NED yaw, feet to head) where its landmarks show it lying."""
         p = self.params
+        heading = None
         x0, _y0, x1, y1 = b.box
         if geometry is None:
             if b.points is not None:
-                return float(np.clip(b.points[:, 0].mean(), 0, w - 1)), float(
-                    np.clip(y1 - 1, 0, h - 1)
-                )
-            return (x0 + x1) / 2, min(y1, h) - 0.5
+                u = float(np.clip(b.points[:, 0].mean(), 0, w - 1))
+                return u, float(np.clip(y1 - 1, 0, h - 1)), None
+            return (x0 + x1) / 2, min(y1, h) - 0.5, None
+        centre = np.array([np.nan, np.nan])
         if b.points is not None:
             joints = geometry.plane_ne_m(b.points, p.joint_height_m)
-            hips = joints[list(_HIPS)].mean(axis=0)
-            shoulders = joints[list(_SHOULDERS)].mean(axis=0)
-            lying = bool(np.all(np.isfinite(hips)) and np.all(np.isfinite(shoulders))) and (
-                float(np.hypot(*(hips - shoulders))) <= p.standing_hip_shoulder_m
-            )
+            lying = not self._standing(b.points, geometry)
             finite = joints[np.all(np.isfinite(joints), axis=1)]
             if lying and len(finite) >= N_BODY_POINTS // 2:
-                centre = finite.mean(axis=0)
+                heading = self._heading(b, joints)
+                centre = self._from_contact(b, geometry, finite, h)
+                if not np.all(np.isfinite(centre)):
+                    centre = finite.mean(axis=0)
             else:
                 feet = geometry.floor_ne_m(b.points[list(_ANKLES)])
                 feet = feet[np.all(np.isfinite(feet), axis=1)]
-                centre = feet.mean(axis=0) if len(feet) else np.array([np.nan, np.nan])
+                if len(feet):
+                    centre = feet.mean(axis=0)
         elif b.part:
             centre = geometry.floor_ne_m(np.array([[(x0 + x1) / 2, min(y1, h) - 0.5]]))[0]
         else:
-            centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
+            centre = self._from_contact(b, geometry, None, h)
+            if not np.all(np.isfinite(centre)):
+                centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
         if np.all(np.isfinite(centre)):
             px = geometry.pixels_of_floor(centre.reshape(1, 2))
             if px is not None and np.all(np.isfinite(px[0])):
-                return float(px[0, 0]), float(px[0, 1])
-        return (x0 + x1) / 2, min(y1, h) - 0.5
+                return float(px[0, 0]), float(px[0, 1]), heading
+        return (x0 + x1) / 2, min(y1, h) - 0.5, heading
+
+    def _heading(self, b: _Body, joints_ne: np.ndarray) -> float | None:
+        """The body's axis (NED yaw, feet to head) from the first pair of body points
+        that are both in sight: nose-ankles, shoulders-hips, hips-ankles. The model
+        places hidden (buried) points by guesswork, so those are never used."""
+        if b.seen is None:
+            return None
+        seen = b.seen >= self.params.landmark_seen
+        for head_end, foot_end in (((0,), _ANKLES), (_SHOULDERS, _HIPS), (_HIPS, _ANKLES)):
+            idx = [*head_end, *foot_end]
+            if not (np.all(seen[idx]) and np.all(np.isfinite(joints_ne[idx]))):
+                continue
+            d_ne = joints_ne[list(head_end)].mean(axis=0) - joints_ne[list(foot_end)].mean(axis=0)
+            if float(np.hypot(*d_ne)) > 1e-3:
+                return math.atan2(float(d_ne[1]), float(d_ne[0]))
+        return None
+
+    def _standing(self, points: np.ndarray, geometry: FrameGeometry) -> bool:
+        """Whether the body stands: its nose stands higher above its ankles than
+        ``standing_height_m``, measured at the ankles' range (a pixel across the view
+        there spans range / focal length metres, on the floor as upright)."""
+        ankles = points[list(_ANKLES)].mean(axis=0)
+        both = geometry.floor_ne_m(np.vstack([ankles, ankles + np.array([1.0, 0.0])]))
+        if not np.all(np.isfinite(both)):
+            return False  # the feet are not on the usable floor in view
+        metres_per_px = float(np.hypot(*(both[1] - both[0])))
+        upright_m = float(ankles[1] - points[0, 1]) * metres_per_px
+        return upright_m > self.params.standing_height_m
+
+    def _from_contact(
+        self, b: _Body, geometry: FrameGeometry, joints_ne: np.ndarray | None, h: int
+    ) -> np.ndarray:
+        """The footprint's centre from where the body meets the floor.
+
+        From a low camera a joint's height above the floor is uncertain, and every
+        centimetre of it moves a ray's floor point by range / camera height
+        centimetres. The lowest mask pixel of each column is where the body's near
+        side meets the floor (``contact_height_m`` up): exact whatever the body's
+        height. The centre lies beyond that near edge, along the view, by half the
+        body's extent in that direction (from its joints' footprint when known, else
+        half a lying body's width). NaN when the mask's bottom is cut by the frame.
+        """
+        p = self.params
+        ys, xs = np.nonzero(b.mask)
+        if len(xs) == 0:
+            return np.array([np.nan, np.nan])
+        bottom = np.full(int(xs.max()) + 1, -1)
+        np.maximum.at(bottom, xs, ys)
+        cols = np.nonzero(bottom >= 0)[0]
+        rows = bottom[cols]
+        keep = rows < h - 2  # a column running off the frame has no contact in view
+        if keep.sum() < max(3, 0.5 * len(cols)):
+            return np.array([np.nan, np.nan])
+        pix = np.column_stack([cols[keep] + 0.5, rows[keep] + 0.5]).astype(np.float64)
+        near = geometry.plane_ne_m(pix, p.contact_height_m)
+        nearer = geometry.plane_ne_m(pix + np.array([0.0, 40.0]), p.contact_height_m)
+        ok = np.all(np.isfinite(near), axis=1) & np.all(np.isfinite(nearer), axis=1)
+        if ok.sum() < 3:
+            return np.array([np.nan, np.nan])
+        edge = np.median(near[ok], axis=0)
+        view = np.median(near[ok] - nearer[ok], axis=0)
+        norm = float(np.hypot(*view))
+        if norm < 1e-6:
+            return np.array([np.nan, np.nan])
+        view /= norm
+        if joints_ne is not None and len(joints_ne) >= 2:
+            # Across the view the joints' footprint is true to scale (unlike along it);
+            # a body of joint span S that spans A across the view spans sqrt(S^2 - A^2)
+            # along it.
+            across = (joints_ne - joints_ne.mean(axis=0)) @ np.array([-view[1], view[0]])
+            span = float(across.max() - across.min())
+            along = math.sqrt(max(p.joint_span_m**2 - span**2, 0.0))
+            half = 0.5 * along + 0.5 * p.body_width_m
+        else:
+            half = 0.5 * p.body_width_m
+        return np.asarray(edge + view * min(half, p.max_half_extent_m), dtype=np.float64)
 
     def _own_extent_area(self, b: _Body) -> float:
         """A whole body's pixels from the body's own extent (images without geometry)."""
@@ -366,7 +533,7 @@ class PeopleDetector:
         x1, y1 = min(float(w), b.box[2]), min(float(h), b.box[3])
         if x1 - x0 < 1.0 or y1 - y0 < 1.0:
             return None
-        u, v = self._floor_pixel(b, geometry, w, h)
+        u, v, heading = self._floor_pixel(b, geometry, w, h)
         # No pixel of mask: a person fills about half of its box (as dnn/hog assume).
         visible = float(b.mask.sum()) if b.mask.any() else 0.5 * (x1 - x0) * (y1 - y0)
         return Detection(
@@ -384,4 +551,5 @@ class PeopleDetector:
             source=self.name,
             cues=tuple(sorted(b.cues)),
             expected_area_px=self._own_extent_area(b),
+            body_heading_rad=heading,
         )

@@ -46,7 +46,9 @@ def assess(detection: Detection, geometry: FrameGeometry | None) -> Assessment |
     if geometry is None:
         expected: float | None = detection.expected_area_px
     else:
-        expected = geometry.expected_body_area_px(detection.u_px, detection.v_px)
+        expected = geometry.expected_body_area_px(
+            detection.u_px, detection.v_px, detection.body_heading_rad
+        )
     if expected is None or expected <= 0.0:
         return None
     pct = visibility_pct(detection.visible_area_px, expected)

@@ -1,0 +1,123 @@
+"""What people hear, and how often: the rate limit and the robot's own conditions.
+
+Pure logic on a caller-given monotonic time; thread-safe (the processing, camera
+and reporter threads all announce, the reporter sends).
+
+``Announcements`` is a token bucket over STATUSTEXT announcements: ``burst`` go out
+at once, then one every ``interval_s``; the rest wait in order. It keeps the radio
+free and the operator's speech queue short. When more than ``max_waiting`` wait,
+the oldest quiet (unspoken) one is dropped first, then the oldest of all, and the
+drop is logged: the HQ still has every report.
+
+``Conditions`` turns the robot's health (camera, HQ link, disk) into one
+announcement per change: "camera lost" when it goes, "camera back" when it
+returns, never repeated while the state holds. A condition that flaps is
+announced at most once per ``hold_s``: the state it settles in is told when the
+hold is over, and nothing when it settled back where it was announced.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+log = logging.getLogger(__name__)
+
+BURST = 3
+INTERVAL_S = 2.0
+MAX_WAITING = 20
+HOLD_S = 10.0
+
+
+@dataclass(frozen=True)
+class Announcement:
+    text: str
+    severity: int  # MAV_SEVERITY
+    spoken: bool  # QGC speaks it (severity NOTICE or more urgent)
+
+
+class Announcements:
+    def __init__(
+        self, burst: int = BURST, interval_s: float = INTERVAL_S, max_waiting: int = MAX_WAITING
+    ) -> None:
+        if burst < 1 or interval_s <= 0 or max_waiting < 1:
+            raise ValueError("burst and max_waiting must be >= 1 and interval_s > 0")
+        self.burst = burst
+        self.interval_s = interval_s
+        self.max_waiting = max_waiting
+        self.dropped = 0
+        self._lock = threading.Lock()
+        self._waiting: deque[Announcement] = deque()
+        self._tokens = float(burst)
+        self._t_mono_s: float | None = None
+
+    def put(self, announcement: Announcement) -> None:
+        with self._lock:
+            self._waiting.append(announcement)
+            if len(self._waiting) > self.max_waiting:
+                quiet = next((a for a in self._waiting if not a.spoken), None)
+                drop = quiet if quiet is not None else self._waiting[0]
+                self._waiting.remove(drop)
+                self.dropped += 1
+                log.warning("announcements: too many waiting; dropped %r", drop.text)
+
+    def take(self, now_mono_s: float) -> list[Announcement]:
+        """The announcements due now, in order."""
+        with self._lock:
+            self._refill(now_mono_s)
+            out = []
+            while self._waiting and self._tokens >= 1.0:
+                out.append(self._waiting.popleft())
+                self._tokens -= 1.0
+            return out
+
+    def seconds_until_due(self, now_mono_s: float) -> float | None:
+        """None when nothing waits."""
+        with self._lock:
+            if not self._waiting:
+                return None
+            self._refill(now_mono_s)
+            return max(0.0, (1.0 - self._tokens) * self.interval_s)
+
+    def _refill(self, now_mono_s: float) -> None:
+        if self._t_mono_s is not None:
+            gained = max(0.0, now_mono_s - self._t_mono_s) / self.interval_s
+            self._tokens = min(float(self.burst), self._tokens + gained)
+        self._t_mono_s = now_mono_s
+
+
+@dataclass
+class _Condition:
+    told_ok: bool = True  # the state last announced (a condition starts fine, unannounced)
+    told_mono_s: float = float("-inf")
+    ok: bool = True
+
+
+class Conditions:
+    """Health conditions by name; ``update`` returns the changes to announce."""
+
+    def __init__(self, hold_s: float = HOLD_S) -> None:
+        self.hold_s = hold_s
+        self._lock = threading.Lock()
+        self._conditions: dict[str, _Condition] = {}
+
+    def update(self, name: str, ok: bool, now_mono_s: float) -> list[tuple[str, bool]]:
+        """Set ``name``'s state; the (name, ok) changes due for announcement now
+        (this condition's, and any other whose hold just ended)."""
+        with self._lock:
+            self._conditions.setdefault(name, _Condition()).ok = ok
+            return self._due(now_mono_s)
+
+    def due(self, now_mono_s: float) -> list[tuple[str, bool]]:
+        with self._lock:
+            return self._due(now_mono_s)
+
+    def _due(self, now_mono_s: float) -> list[tuple[str, bool]]:
+        out = []
+        for name, c in self._conditions.items():
+            if c.ok != c.told_ok and now_mono_s - c.told_mono_s >= self.hold_s:
+                c.told_ok, c.told_mono_s = c.ok, now_mono_s
+                out.append((name, c.ok))
+        return out

@@ -1,0 +1,238 @@
+"""What the console shows, as JSON: HQ victims, robots (link, position, path), notes.
+
+``LiveRobots`` is filled by the HQ's main thread (every message heard from a
+system, LOCAL_POSITION_NED from a robot's autopilot) and read by the console's
+thread; it is the only state the two share, behind one lock. ``snapshot`` builds
+the page's whole state from the registry's rows and LiveRobots; it is pure.
+
+The list order is the operator's: open victims before resolved ones (RESCUED,
+FALSE_ALARM), then the most urgent first, then the one waiting longest (earliest
+first seen). Positions are in the robots' local frame (metres north/east of the
+EKF origin, where the robots started); the uncertainty ellipse is the 95 % region
+of the fused position's covariance.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from fusion.types import TrackState
+from hq.records import Action, Robot
+from hq.view import HqVictim
+
+CHI2_2DOF_95 = 5.991  # scipy.stats.chi2.ppf(0.95, df=2): the ellipse's scale
+_RESOLVED = (TrackState.RESCUED, TrackState.FALSE_ALARM)
+_ACTION_NAMES = {1: "rescued", 2: "false_alarm", 4: "confirmed"}
+
+
+@dataclass
+class _Track:
+    last_heard_unix_s: float = 0.0
+    north_m: float | None = None
+    east_m: float | None = None
+    position_unix_s: float | None = None
+    path: list[tuple[float, float]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class RobotTrack:
+    sysid: int
+    last_heard_unix_s: float
+    north_m: float | None
+    east_m: float | None
+    position_unix_s: float | None
+    path: tuple[tuple[float, float], ...]
+
+
+class LiveRobots:
+    """Thread-safe: when each system was last heard, and each robot's position and path.
+
+    A path point is kept when the robot moved at least ``path_step_m`` from the
+    last one; beyond ``max_path_points`` every other point of the older half is
+    dropped, so a long mission keeps its whole shape in bounded memory.
+    """
+
+    def __init__(self, path_step_m: float = 0.5, max_path_points: int = 2000) -> None:
+        self._lock = threading.Lock()
+        self._tracks: dict[int, _Track] = {}
+        self._step_m = path_step_m
+        self._max_points = max_path_points
+        self.version = 0  # bumped on every change a page shows (a new position)
+
+    def heard(self, sysid: int, now_unix_s: float) -> None:
+        with self._lock:
+            self._tracks.setdefault(sysid, _Track()).last_heard_unix_s = now_unix_s
+
+    def position(self, sysid: int, north_m: float, east_m: float, now_unix_s: float) -> None:
+        if not (math.isfinite(north_m) and math.isfinite(east_m)):
+            return
+        with self._lock:
+            t = self._tracks.setdefault(sysid, _Track())
+            t.last_heard_unix_s = max(t.last_heard_unix_s, now_unix_s)
+            t.north_m, t.east_m, t.position_unix_s = north_m, east_m, now_unix_s
+            last = t.path[-1] if t.path else None
+            if last is None or math.hypot(north_m - last[0], east_m - last[1]) >= self._step_m:
+                t.path.append((north_m, east_m))
+                if len(t.path) > self._max_points:
+                    half = len(t.path) // 2
+                    t.path[:half] = t.path[:half:2]
+            self.version += 1
+
+    def last_heard(self) -> dict[int, float]:
+        """System ID -> when it was last heard (Unix s); cheap, no paths."""
+        with self._lock:
+            return {s: t.last_heard_unix_s for s, t in self._tracks.items()}
+
+    def positioned(self) -> frozenset[int]:
+        with self._lock:
+            return frozenset(s for s, t in self._tracks.items() if t.north_m is not None)
+
+    def tracks(self) -> dict[int, RobotTrack]:
+        with self._lock:
+            return {
+                s: RobotTrack(
+                    s, t.last_heard_unix_s, t.north_m, t.east_m, t.position_unix_s, tuple(t.path)
+                )
+                for s, t in self._tracks.items()
+            }
+
+
+@dataclass(frozen=True)
+class Note:
+    note_id: int
+    hq_id: int
+    text: str
+    created_unix_s: float
+
+
+def ellipse_95(cov: Sequence[Sequence[float]]) -> dict[str, float]:
+    """Semi-axes (m) and the major axis' bearing (deg from north toward east)."""
+    (nn, ne), (_, ee) = cov
+    mean = 0.5 * (nn + ee)
+    diff = math.hypot(0.5 * (nn - ee), ne)
+    major, minor = max(mean + diff, 0.0), max(mean - diff, 0.0)
+    bearing = 0.5 * math.degrees(math.atan2(2.0 * ne, nn - ee))
+    k = math.sqrt(CHI2_2DOF_95)
+    return {
+        "major_m": round(k * math.sqrt(major), 3),
+        "minor_m": round(k * math.sqrt(minor), 3),
+        "bearing_deg": round(bearing, 2),
+    }
+
+
+def _sort_key(v: HqVictim) -> tuple[bool, int, float, int]:
+    return (v.state in _RESOLVED, -int(v.urgency), v.first_seen_unix_s, v.hq_id)
+
+
+def _victim(
+    v: HqVictim, actions: list[Action], notes: list[Note], has_picture: bool
+) -> dict[str, Any]:
+    return {
+        "id": v.hq_id,
+        "urgency": v.urgency.name,
+        "urgency_rank": int(v.urgency),
+        "state": v.state.name,
+        "resolved": v.state in _RESOLVED,
+        "sources": [{"robot": r, "victim_id": i} for r, i in v.sources],
+        "robots": list(v.robots),
+        "north_m": round(v.north_m, 3),
+        "east_m": round(v.east_m, 3),
+        "sigma_m": round(v.sigma_m, 3),
+        "ellipse": ellipse_95(v.cov_ne_m2),
+        "lat_deg": v.lat_deg,
+        "lon_deg": v.lon_deg,
+        "visibility_pct": round(v.visibility_pct, 1),
+        "first_seen_unix_s": v.first_seen_unix_s,
+        "last_seen_unix_s": v.last_seen_unix_s,
+        "sightings": v.observations,
+        "actions_pending": v.actions_pending,
+        "actions": [
+            {
+                "seq": a.action_seq,
+                "action": _ACTION_NAMES.get(a.action.value, a.action.name.lower()),
+                "robot": a.robot_sysid,
+                "created_unix_s": a.created_unix_s,
+                "acked": a.acked_unix_s is not None,
+            }
+            for a in actions
+        ],
+        "notes": [{"text": n.text, "created_unix_s": n.created_unix_s} for n in notes],
+        "picture": f"/victims/{v.hq_id}/picture" if has_picture else None,
+    }
+
+
+def _robot(
+    sysid: int, robot: Robot | None, track: RobotTrack | None, now: float, timeout_s: float
+) -> dict[str, Any]:
+    heard = max(
+        robot.last_heard_unix_s if robot else 0.0, track.last_heard_unix_s if track else 0.0
+    )
+    status = asdict(robot.status) if robot and robot.status else None
+    return {
+        "sysid": sysid,
+        "last_heard_unix_s": heard,
+        "link_lost": now - heard > timeout_s,
+        "status": status,
+        "position": (
+            None
+            if track is None or track.north_m is None
+            else {"north_m": round(track.north_m, 2), "east_m": round(track.east_m or 0.0, 2)}
+        ),
+        "path": [[round(n, 2), round(e, 2)] for n, e in track.path] if track else [],
+    }
+
+
+def robots_lost(
+    robots: Iterable[Robot], live: LiveRobots, now: float, timeout_s: float
+) -> frozenset[int]:
+    """The robots (reported or positioned) not heard for longer than ``timeout_s``."""
+    known = {r.sysid: r.last_heard_unix_s for r in robots}
+    positioned = live.positioned()
+    for sysid, heard in live.last_heard().items():
+        if sysid in known or sysid in positioned:
+            known[sysid] = max(known.get(sysid, 0.0), heard)
+    return frozenset(s for s, heard in known.items() if now - heard > timeout_s)
+
+
+def snapshot(
+    victims: list[HqVictim],
+    robots: list[Robot],
+    actions: list[Action],
+    notes: list[Note],
+    tracks: dict[int, RobotTrack],
+    pictures: frozenset[int],
+    now_unix_s: float,
+    link_timeout_s: float,
+) -> dict[str, Any]:
+    """The page's whole state. Robots: every one that reported, and every one with a position."""
+    by_source: dict[tuple[int, int], list[Action]] = {}
+    for a in actions:
+        by_source.setdefault((a.robot_sysid, a.victim_id), []).append(a)
+    by_victim: dict[int, list[Note]] = {}
+    for n in notes:
+        by_victim.setdefault(n.hq_id, []).append(n)
+    registered = {r.sysid: r for r in robots}
+    shown = sorted(set(registered) | {s for s, t in tracks.items() if t.north_m is not None})
+    return {
+        "now_unix_s": now_unix_s,
+        "link_timeout_s": link_timeout_s,
+        "victims": [
+            _victim(
+                v,
+                sorted(
+                    (a for key in v.sources for a in by_source.get(key, [])),
+                    key=lambda a: a.action_seq,
+                ),
+                by_victim.get(v.hq_id, []),
+                v.hq_id in pictures,
+            )
+            for v in sorted(victims, key=_sort_key)
+        ],
+        "robots": [
+            _robot(s, registered.get(s), tracks.get(s), now_unix_s, link_timeout_s) for s in shown
+        ],
+    }

@@ -1,0 +1,250 @@
+"""The 3-D pass of the renderer: solid bodies and debris over the rendered floor.
+
+After the floor is sampled (scenarios.render), every camera ray is intersected with
+the victims' solid bodies (scenarios.body3d) and the debris prisms (the convex hull
+of each piece's outline, from the floor up to its height). The nearest hit in front
+of the floor wins (a z-buffer per pixel); it is shaded with the light of the zone it
+stands in, a sky term for surfaces facing up, and the headlight. Debris that lies on
+a victim is raised above the body, so the part of the body under it is hidden from
+every view: the ground-truth visibility (the uncovered share of the body's
+footprint, scenarios.world) and what the camera sees agree.
+
+Which victim each pixel shows is returned, so the renderer's ground truth ("in
+view", visible pixels) counts what is really drawn, occlusion included.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.camera import CameraModel
+from scenarios import body3d, shapes
+from scenarios.raster import FloorRaster
+from scenarios.world import Debris, Victim, World, compute_visibility
+
+F = NDArray[np.float64]
+
+_PILE_CLEARANCE_M = 0.04  # a pile's top above the body it buries
+_SOLID_MIN_M = 0.02  # thinner debris is drawn flat, by the floor raster
+_SKY = 0.45  # share of a zone's light on a vertical surface (1 on one facing up)
+_CULL_MARGIN = 1.3  # bounding-sphere pixel radius, for the lens distortion
+
+
+@dataclass(frozen=True)
+class _Prism:
+    planes: tuple[F, F]  # shapes.prism_planes of the hull, floor to top
+    corners: F  # (2N, 3) NED: the hull at the floor and at the top
+    top_m: float
+    centre: F  # bounding sphere (NED)
+    radius_m: float
+
+
+def _body_top_m(body: body3d.Body3D) -> float:
+    top = 0.0
+    for s in body.solids:
+        if s.kind == "capsule":
+            top = max(top, -float(s.a[2]) + s.radius_m, -float(s.b[2]) + s.radius_m)
+        else:
+            top = max(top, -float(s.a[2]) + float(np.linalg.norm(s.axes[2, :])))
+    return top
+
+
+def _prism(d: Debris, victims: tuple[Victim, ...], bodies: list[body3d.Body3D]) -> _Prism:
+    poly = d.polygon
+    top = d.height_m
+    for v, b in zip(victims, bodies, strict=True):
+        if compute_visibility(v, (d,))[0] < 100.0:
+            top = max(top, _body_top_m(b) + _PILE_CLEARANCE_M)
+    c2 = poly.mean(axis=0)
+    r = float(np.linalg.norm(poly - c2, axis=1).max())
+    corners = np.vstack(
+        [
+            np.column_stack([poly, np.zeros(len(poly))]),
+            np.column_stack([poly, np.full(len(poly), -top)]),
+        ]
+    )
+    return _Prism(
+        shapes.prism_planes(poly, 0.0, top),
+        corners,
+        top,
+        np.array([c2[0], c2[1], -top / 2]),
+        math.hypot(r, top / 2),
+    )
+
+
+def _cone_rect(
+    rays: F, oc: F, radius_m: float, window: tuple[int, int, int, int]
+) -> tuple[int, int, int, int] | None:
+    """The bounding pixel rectangle, inside ``window`` (x0, y0, x1, y1), of the rays that
+    pass within radius_m of the point ``oc`` (relative to the camera), tested on every
+    4th pixel and widened by 4."""
+    x0, y0, x1, y1 = window
+    dist2 = float(oc @ oc)
+    along = rays[y0:y1:4, x0:x1:4] @ oc
+    near = along * along >= dist2 - radius_m * radius_m
+    if dist2 > radius_m * radius_m:
+        near &= along > 0
+    ys, xs = np.nonzero(near)
+    if len(ys) == 0:
+        return None
+    h, w = rays.shape[:2]
+    return (
+        max(x0 + int(xs.min()) * 4 - 4, 0),
+        max(y0 + int(ys.min()) * 4 - 4, 0),
+        min(x0 + int(xs.max()) * 4 + 5, w),
+        min(y0 + int(ys.max()) * 4 + 5, h),
+    )
+
+
+def _anchors(item: body3d.Solid | _Prism) -> tuple[F, float, F, float]:
+    """Anchor points, their radius, and the bounding sphere of a solid or prism."""
+    if isinstance(item, _Prism):
+        return item.corners, 0.0, item.centre, item.radius_m
+    centre, bound = item.bound()
+    if item.kind == "capsule":
+        return np.vstack([item.a, item.b]), item.radius_m, centre, bound
+    return item.a[None, :], bound, centre, bound
+
+
+class Solids:
+    """The world's bodies and debris prisms, ready to draw. Built once per world."""
+
+    def __init__(self, world: World, raster: FloorRaster, camera: CameraModel) -> None:
+        self.world = world
+        self.raster = raster
+        self.camera = camera
+        self.bodies = [v.body() for v in world.victims]
+        self.looks = [v.look() for v in world.victims]
+        self.victim_ids = tuple(v.victim_id for v in world.victims)
+        prisms = [_prism(d, world.victims, self.bodies) for d in world.debris]
+        # Thinner pieces (sheets, tarps, cables, paint) stay in the floor raster.
+        self.prisms = [pr for pr in prisms if pr.top_m >= _SOLID_MIN_M]
+
+    def _rects(
+        self, anchors: list[tuple[F, float, F, float]], cam_centre: F, r_nc: F, rays: F
+    ) -> list[tuple[int, int, int, int] | None]:
+        """The pixel rectangle (x0, y0, x1, y1) each item may cover, or None.
+
+        An item is given as anchor points (K, 3) with a radius around each (the solid
+        lies within those spheres' hull) and its bounding sphere (centre, radius).
+        """
+        k = self.camera.intrinsics
+        f_px = max(k.fx_px, k.fy_px)
+        points = np.vstack([a for a, _, _, _ in anchors])
+        rel = (points - cam_centre) @ r_nc  # camera frame
+        safe = rel.copy()
+        safe[:, 2] = np.maximum(safe[:, 2], 1e-3)
+        uv = self.camera.project_camera(safe)
+        out: list[tuple[int, int, int, int] | None] = []
+        i = 0
+        for pts, radius, centre, bound in anchors:
+            n = len(pts)
+            z = rel[i : i + n, 2]
+            if float(((centre - cam_centre) @ r_nc)[2]) < -bound:
+                out.append(None)  # behind the camera
+            elif (z < radius + 0.02).any():  # beside the camera
+                full = (0, 0, k.width_px, k.height_px)
+                out.append(_cone_rect(rays, centre - cam_centre, bound, full))
+            else:
+                # The image of a sphere at distance dist, depth z: within f r dist / (z (z - r)).
+                dist = np.linalg.norm(rel[i : i + n], axis=1)
+                r_px = _CULL_MARGIN * f_px * radius * dist / (z * (z - radius)) + 2.0
+                u, v = uv[i : i + n, 0], uv[i : i + n, 1]
+                x0 = max(int((u - r_px).min()), 0)
+                x1 = min(int((u + r_px).max()) + 1, k.width_px)
+                y0 = max(int((v - r_px).min()), 0)
+                y1 = min(int((v + r_px).max()) + 1, k.height_px)
+                if x0 >= x1 or y0 >= y1:
+                    out.append(None)
+                elif radius > 0:  # tighten a round solid's rectangle by its cone
+                    out.append(_cone_rect(rays, centre - cam_centre, bound, (x0, y0, x1, y1)))
+                else:
+                    out.append((x0, y0, x1, y1))
+            i += n
+        return out
+
+    def draw(
+        self,
+        signal: np.ndarray,
+        depth_m: np.ndarray,
+        cam_centre: F,
+        r_nc: F,
+        rays: F,
+        headlight: float,
+    ) -> dict[int, int]:
+        """Draw over ``signal`` (H, W, 3 float, 0..1) in place; visible pixels per victim.
+
+        ``depth_m``: the floor's distance along each ray (inf off the floor), (H, W).
+        ``rays``: unit NED rays (H, W, 3).
+        """
+        h, w = depth_m.shape
+        depth = depth_m.astype(np.float64)
+        owner = np.zeros((h, w), np.int32)  # 0 floor, k >= 1 body k-1, -k prism k-1
+        normal = np.zeros((h, w, 3), np.float32)
+        material = np.zeros((h, w), np.int8)
+        items: list[tuple[int, body3d.Solid | _Prism]] = []
+        for k, body in enumerate(self.bodies, start=1):
+            items += [(k, solid) for solid in body.solids]
+        items += [(-k, pr) for k, pr in enumerate(self.prisms, start=1)]
+        if not items:
+            return {}
+        rects = self._rects([_anchors(it) for _, it in items], cam_centre, r_nc, rays)
+        for (item_id, item), rect in zip(items, rects, strict=True):
+            if rect is None:
+                continue
+            x0, y0, x1, y1 = rect
+            rect_rays = rays[y0:y1, x0:x1].reshape(-1, 3)
+            if isinstance(item, body3d.Solid):
+                t_hit, nrm = item.intersect(cam_centre, rect_rays)
+            else:
+                t_hit, nrm = shapes.prism(cam_centre, rect_rays, item.planes)
+            t_rect = t_hit.reshape(y1 - y0, x1 - x0)
+            closer = t_rect < depth[y0:y1, x0:x1]
+            if not closer.any():
+                continue
+            depth[y0:y1, x0:x1][closer] = t_rect[closer]
+            owner[y0:y1, x0:x1][closer] = item_id
+            normal[y0:y1, x0:x1][closer] = nrm.reshape(y1 - y0, x1 - x0, 3)[closer]
+            if isinstance(item, body3d.Solid):
+                material[y0:y1, x0:x1][closer] = item.material
+        hit = np.nonzero(owner.ravel())[0]
+        if len(hit) == 0:
+            return {}
+        t = depth.ravel()[hit]
+        d = rays.reshape(-1, 3)[hit]
+        p = cam_centre + d * t[:, None]
+        albedo = np.empty((len(hit), 3))
+        who = owner.ravel()[hit]
+        mat = material.ravel()[hit]
+        for k, body in enumerate(self.bodies, start=1):
+            m = who == k
+            if m.any():
+                albedo[m] = body3d.paint(body, self.looks[k - 1], p[m], mat[m])
+        debris = who < 0
+        if debris.any():
+            albedo[debris] = self._debris_colour(p[debris])
+        n = normal.reshape(-1, 3)[hit].astype(np.float64)
+        zone = self.world.light_at(p[:, 0], p[:, 1])
+        sky = _SKY + (1.0 - _SKY) * np.clip(-n[:, 2], 0.0, 1.0)
+        facing = np.clip(-(n * d).sum(axis=1), 0.0, 1.0)
+        light = zone * sky + headlight * facing * np.minimum(1.0, 1.0 / np.square(t))
+        flat = signal.reshape(-1, 3)
+        flat[hit] = (albedo * (light / 255.0)[:, None]).astype(np.float32)
+        counts = np.bincount(who[who > 0], minlength=len(self.bodies) + 1)
+        return {
+            vid: int(counts[k]) for k, vid in enumerate(self.victim_ids, start=1) if counts[k] > 0
+        }
+
+    def _debris_colour(self, p: F) -> F:
+        """The debris surface colour: the floor raster's paint at the point's footprint."""
+        res = self.raster.res_m
+        rows, cols = self.raster.bgrl.shape[:2]
+        r = np.clip((p[:, 0] / res).astype(int), 0, rows - 1)
+        c = np.clip((p[:, 1] / res).astype(int), 0, cols - 1)
+        colour = self.raster.bgrl[r, c, :3].astype(np.float64)
+        # Side faces show the piece's grain in the vertical (height) as well.
+        return colour * (0.9 + 0.1 * np.sin(-p[:, 2] * 60.0))[:, None]
