@@ -84,7 +84,14 @@ class PeopleParams:
     # many of those run per frame, taking turns (a live camera sees a body on many
     # frames); a large number runs all of them on every frame, as for a single photo.
     extra_passes: int = 1
+    # A body the detector finds only in a turned frame (where it is out of its
+    # training) counts when the landmark model is this sure (a thermal dog was 0.82,
+    # real lying people 0.89-1.0: bench/real_images.py).
+    turned_min_flag: float = 0.85
     far_tiles: bool = True  # tiles of the far floor band (needs the frame's geometry)
+    # Without a geometry (a photo) the far band is unknown: a 2:1 tile of this share of
+    # the frame's width at its centre zooms a small or distant body by 1/share.
+    centre_tile_share: float = 0.75
     far_band_mpp: float = 0.0045  # floor farther than this many metres per pixel
     tile_min_px: int = 160  # a tile's height at least; its width is twice its height
     joint_height_m: float = 0.10  # a lying adult's joints above the floor
@@ -101,6 +108,7 @@ class PeopleParams:
     lone_person_weight: float = 0.75  # a person detection no other cue supports
     min_part_mask_share: float = 0.2  # a lone part's box covered by the person mask for "mask"
     attached_body_share: float = 6.0  # person mask around a part this many boxes: a body
+    same_body_overlap: float = 0.6  # two passes' bodies overlapping this much: one body
 
 
 @dataclass(frozen=True)
@@ -129,6 +137,36 @@ class _Body:
 def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
     ys, xs = np.nonzero(mask)
     return float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)
+
+
+def _box_overlap(
+    a: tuple[float, float, float, float], b: tuple[float, float, float, float]
+) -> float:
+    """The intersection of two boxes (x0, y0, x1, y1) over the smaller one's area."""
+    iw = min(a[2], b[2]) - max(a[0], b[0])
+    ih = min(a[3], b[3]) - max(a[1], b[1])
+    if iw <= 0 or ih <= 0:
+        return 0.0
+    smaller = min((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1]))
+    return iw * ih / smaller if smaller > 0 else 0.0
+
+
+def _add_body(bodies: list[_Body], new: _Body, same_overlap: float) -> None:
+    """Add ``new`` unless it is a body already found by another pass (boxes overlapping
+    by ``same_overlap`` of the smaller): then the one with landmarks, else the higher
+    score, stays, with the cues of both."""
+    for i, b in enumerate(bodies):
+        if _box_overlap(b.box, new.box) < same_overlap:
+            continue
+        keep, drop = (
+            (b, new)
+            if (b.points is not None, b.score) >= (new.points is not None, new.score)
+            else (new, b)
+        )
+        keep.cues |= drop.cues
+        bodies[i] = keep
+        return
+    bodies.append(new)
 
 
 def _mean_luma(image_bgr: np.ndarray) -> float:
@@ -195,6 +233,11 @@ class PeopleDetector:
         ]
         if p.far_tiles and geometry is not None:
             extras += [_View(None, t) for t in self._far_tiles(geometry, w, h)]
+        elif 0.0 < p.centre_tile_share < 1.0:
+            tw = round(w * p.centre_tile_share)
+            th = min(h, tw // 2)
+            x0, y0 = (w - tw) // 2, (h - th) // 2
+            extras.append(_View(None, (x0, y0, x0 + tw, y0 + th)))
         if p.extra_passes >= len(extras):
             return [_View(None, None), *extras]
         chosen = []
@@ -268,13 +311,23 @@ class PeopleDetector:
         return cv2.resize(prob, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
 
     def _body(
-        self, rgb: np.ndarray, seg: np.ndarray, score: float, kp: np.ndarray, box: np.ndarray
-    ) -> _Body:
+        self,
+        rgb: np.ndarray,
+        seg: np.ndarray,
+        score: float,
+        kp: np.ndarray,
+        box: np.ndarray,
+        turned: bool = False,
+    ) -> _Body | None:
+        """The body around a person detection; None for one from a turned frame that
+        the landmark model does not confirm with ``turned_min_flag``."""
         p = self.params
         hw = rgb.shape[:2]
         rect = _rect_from_keypoints(kp)
         out = self._landmarks(to_range(rect.crop(rgb, LANDMARK_PX), 0.0, 1.0))
         flag = float(out[1].reshape(-1)[0])
+        if turned and flag < p.turned_min_flag:
+            return None
         region = rect.paste(np.ones((LANDMARK_PX, LANDMARK_PX), np.uint8), hw)
         cues = {"person"}
         points = seen = None
@@ -323,7 +376,9 @@ class PeopleDetector:
                 hy = int(np.clip(kp[0, 1], 0, h - 1))
                 if any(b.region[hy, hx] for b in bodies):
                     continue  # the same body, seen again by a turned pass
-                bodies.append(self._body(rgb, seg, d.score, kp, box))
+                body = self._body(rgb, seg, d.score, kp, box, turned=view.turn is not None)
+                if body is not None:
+                    _add_body(bodies, body, p.same_body_overlap)
         parts = [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
         parts += [("hand", x) for x in self._ssd(self._palm, PALM_SPEC, "palm", rgb, 0.0)]
         for kind, (d, box, _kp) in parts:
