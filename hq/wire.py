@@ -76,16 +76,10 @@ def origin_from_msg(msg: MavMessage) -> GlobalOrigin | None:
 
     BadMessage when it is off the globe or its altitude is implausible.
     """
-    if msg.latitude == 0 and msg.longitude == 0:
-        return None
-    origin = convert.origin_from_gps_global_origin(msg)
-    if origin is None:  # convert refuses what is off the globe
-        raise BadMessage(
-            f"latitude {msg.latitude} / longitude {msg.longitude} (degE7) off the globe"
-        )
     try:
-        return records.check_origin(origin)
-    except records.BadRecord as exc:
+        origin = convert.parse_gps_global_origin(msg)  # None for 0/0
+        return None if origin is None else records.check_origin(origin)
+    except (convert.BadField, records.BadRecord) as exc:
         raise BadMessage(str(exc)) from None
 
 

@@ -140,9 +140,9 @@ def _lat_lon_alt(
     msg_type: str, lat_e7: int, lon_e7: int, alt_mm: int
 ) -> tuple[float, float, float]:
     lat_deg, lon_deg, alt_m = deg_from_e7(lat_e7), deg_from_e7(lon_e7), alt_mm / MM_PER_M
-    _check(msg_type, "lat", lat_deg, -90.0, 90.0)
-    _check(msg_type, "lon", lon_deg, -180.0, 180.0)
-    _check(msg_type, "alt", alt_m, *ALT_RANGE_M)
+    _check(msg_type, "latitude_deg", lat_deg, -90.0, 90.0)
+    _check(msg_type, "longitude_deg", lon_deg, -180.0, 180.0)
+    _check(msg_type, "altitude_m", alt_m, *ALT_RANGE_M)
     return lat_deg, lon_deg, alt_m
 
 

@@ -84,12 +84,7 @@ class Downstream:
             merged_into=None,
         )
         report = victim.to_report(SYSID, pose.down_m + 0.1, origin)
-        msgs = [convert.victim_report_to_msg(report, 1, 0, time.time(), None)]
-        marker = convert.victim_marker_msg(report, pose.t_boot_s, time.time(), None)
-        if marker is not None:
-            msgs.append(marker)
-        for msg in msgs:
-            self.codec.encode(msg)
+        self.codec.encode(convert.victim_report_to_msg(report, 1, 0, time.time(), None))
         self.checked += 1
 
 
