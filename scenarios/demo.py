@@ -109,6 +109,7 @@ _OUTPUTS = (
     "hq.sqlite",
     "hq.sqlite-wal",
     "hq.sqlite-shm",
+    "hq.sqlite.epoch",  # a fresh registry starts at ID 1 again
     "companion.toml",
     "companion.log",
     "hq.log",
