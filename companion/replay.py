@@ -31,7 +31,7 @@ from companion.vision import make_detector
 from fusion.pose import PoseHistory
 from fusion.registry import Victim
 from fusion.tracker import VictimTracker
-from fusion.types import GlobalOrigin, TrackState
+from fusion.types import GlobalOrigin, TrackState, VictimReport
 from mavlink_io.codec import MavMessage
 from mavlink_io.errors import TlogError
 from mavlink_io.telemetry import TelemetryDecoder, is_autopilot_heartbeat
@@ -42,6 +42,17 @@ log = logging.getLogger(__name__)
 LOOKAHEAD_S = 0.25  # telemetry read past a frame before it is processed
 REPLAY_FORMAT = "rescue-companion/replay"
 REPLAY_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ReplayReport:
+    """One report the live service would have sent: at the frame's capture time, the
+    victim as reported, the report's flags and the victim it was merged into."""
+
+    t_unix_s: float
+    report: VictimReport
+    flags: int
+    merged_into: int | None
 
 
 @dataclass
@@ -58,6 +69,7 @@ class ReplayResult:
     first_reported_unix_s: dict[int, float] = field(default_factory=dict)
     route_ne_m: list[tuple[float, float]] = field(default_factory=list)
     floor_down_m: float = 0.0
+    reports: list[ReplayReport] = field(default_factory=list)  # in the order decided
 
 
 class _Telemetry:
@@ -172,6 +184,7 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
         ),
     )
     first_reported: dict[int, float] = {}
+    reports: list[ReplayReport] = []
     total = len(source)
     while True:
         try:
@@ -180,8 +193,12 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
             break
         telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)
         outcome = pipeline.process(frame, poses)
+        floor_down_m = telemetry.last_down_m + config.geolocation.floor_down_m
         for decision in outcome.decisions:
-            first_reported.setdefault(decision.victim.victim_id, frame.t_unix_s)
+            v = decision.victim
+            first_reported.setdefault(v.victim_id, frame.t_unix_s)
+            report = v.to_report(telemetry.sysid, floor_down_m, telemetry.decoder.origins.origin)
+            reports.append(ReplayReport(frame.t_unix_s, report, decision.flags, v.merged_into))
         _progress(frame.index + 1, total, len(tracker.victims()))
     telemetry.advance_to(float("inf"))
     source.close()
@@ -201,6 +218,7 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
         first_reported_unix_s=first_reported,
         route_ne_m=telemetry.route,
         floor_down_m=telemetry.last_down_m + config.geolocation.floor_down_m,
+        reports=reports,
     )
 
 

@@ -7,7 +7,7 @@
     rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
                       [--camera-port PORT] [--time-scale X]
     rescue-sim demo   [--preset P | --seed S | --world W] [--out DIR] [--duration-s T]
-                      [--resume]
+                      [--resume] [--live]
 
 Exit status: 0 success, 1 runtime failure, 2 bad input or usage.
 """
@@ -87,7 +87,9 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--time-scale", type=float, default=1.0)
     v.add_argument("--speed-m-s", type=float, default=0.4)
     d = sub.add_parser(
-        "demo", help="the whole product live on loopback: rover, camera, companion, rescue-hq"
+        "demo",
+        help="a simulated mission through the companion's pipeline to a real rescue-hq, "
+        "deterministic (--live: the whole product in real time on loopback)",
     )
     _world_args(d, required=False)
     d.add_argument("--out", type=Path, default=Path("demo-out"), help="logs, map, exports")
@@ -97,6 +99,12 @@ def _parser() -> argparse.ArgumentParser:
         "--resume",
         action="store_true",
         help="keep the previous run's state in --out (default: start fresh)",
+    )
+    d.add_argument(
+        "--live",
+        action="store_true",
+        help="rover, camera, rescue-companion run and rescue-hq live in real time "
+        "(results then depend on how many frames this machine processes)",
     )
     return parser
 
@@ -179,9 +187,15 @@ def _cmd_rover(args: argparse.Namespace, world: World) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace, world: World) -> int:
-    from scenarios.demo import print_summary, run_demo
+    from scenarios.demo import DemoError, print_summary, run_demo
 
-    result = run_demo(world, args.out, args.duration_s, args.speed_m_s, args.resume)
+    try:
+        result = run_demo(
+            world, args.out, args.duration_s, args.speed_m_s, args.resume, live=args.live
+        )
+    except DemoError as exc:
+        print(f"rescue-sim: demo: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
     print_summary(result)
     if result.companion_exit != 0 or result.hq_exit != 0:
         print(

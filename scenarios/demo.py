@@ -1,20 +1,26 @@
-"""``rescue-sim demo``: the whole product on loopback, what ``make demo`` runs.
+"""``rescue-sim demo``: the product on a simulated mission, what ``make demo`` runs.
 
-The simulated rover and its camera run in this process (scenarios.live); the real
-``rescue-companion run`` and ``rescue-hq`` run as child processes, wired as on a
-robot: companion <-> rover on one UDP port, rover <-> HQ on another. Our reports
-reach the HQ only inside TUNNEL, routed by the rover as ArduPilot would. The HQ's
-live table shows victims as they are confirmed; at the end the demo prints the
-HQ's victim table, then each true victim beside what the HQ received for it (ID,
-urgency, error, seconds from first in view to first report) and the totals, and
-writes a mission map PNG (debris, the rover's path, true and reported victims with
-their 95 % ellipses, a legend) of what the HQ holds.
+By default the demo is deterministic: the simulated rover's mission is recorded in
+simulated time (``scenarios.record``: frames and the autopilot's telemetry, the
+same for a seed on every machine), the companion's own pipeline processes every
+frame of it as on the Pi (``companion.replay``: the default person detector,
+geolocation, tracker, reporting policy), and each report it decides goes, in
+order, as a RESCUE_VICTIM_REPORT over UDP to a real ``rescue-hq`` child process,
+which stores, merges and acknowledges it (resent until acknowledged). A fixed seed
+gives the same victims, IDs and figures whatever the machine's speed.
 
-Every run starts fresh (the previous run's state in the output folder is removed)
-unless ``--resume`` is given. The mission runs live, in real time: the companion
-processes what frames its CPU allows, so two runs on a loaded machine can differ in
-a frame or two; ``rescue-sim record`` + ``rescue-companion replay`` (and the
-scenario suite in ``make bench``) are the deterministic route.
+``--live`` runs the whole product in real time instead: the simulated rover and its
+camera in this process (scenarios.live), the real ``rescue-companion run`` and
+``rescue-hq`` as child processes wired as on a robot (our reports reach the HQ only
+inside TUNNEL, routed by the rover as ArduPilot would). The companion then
+processes what frames its CPU allows, so two runs on a loaded machine can differ.
+
+Either way the demo prints the HQ's victim table, then each true victim beside what
+the HQ holds for it (ID, urgency, error, seconds from first in view to first
+report) with the totals, and writes a mission map PNG (debris, the rover's path,
+true and reported victims with their 95 % ellipses, a legend) of what the HQ holds.
+Every run starts fresh (the previous run's outputs in the folder are removed)
+unless ``--resume`` is given.
 """
 
 from __future__ import annotations
@@ -27,20 +33,29 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
+from companion.config import load_config
 from companion.missionmap import MapTruth, MapVictim, draw_mission_map
+from companion.replay import ReplayReport, replay
 from fusion.types import TrackState
 from hq.registry import Registry
+from hq.simrobot import SimRobot
 from hq.view import hq_victims
+from mavlink_io import convert
 from scenarios.live import LiveSim
+from scenarios.motion import Trajectory, route_of
+from scenarios.record import record
 from scenarios.score import (
     GroundTruth,
     ReportedVictim,
     ScoreResult,
     TrueVictim,
     format_score,
+    load_truth,
     score,
 )
 from scenarios.world import World
@@ -49,6 +64,13 @@ log = logging.getLogger(__name__)
 
 _STOP_TIMEOUT_S = 10.0
 _ROUTE_SAMPLE_S = 0.5
+DEMO_FPS = 5.0  # as the scenario suite (bench/accuracy.py)
+_ACK_TIMEOUT_S = 2.0
+_SEND_ATTEMPTS = 5
+
+
+class DemoError(Exception):
+    """The demo could not run (rescue-hq did not start or answer)."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +136,7 @@ _OUTPUTS = (
     "companion.log",
     "hq.log",
     "mission_map.png",
+    "mission",  # the recorded mission (deterministic demo)
 )
 
 
@@ -132,8 +155,10 @@ def run_demo(
     duration_s: float | None,
     speed_m_s: float,
     resume: bool = False,
+    live: bool = False,
 ) -> DemoResult:
-    """Run a live mission; the children's logs and every output land in ``out_dir``.
+    """Run a mission (recorded and replayed, or ``live``); every output, the
+    children's logs included, lands in ``out_dir``.
 
     Fresh unless ``resume``: the previous run's state, logs and exports in
     ``out_dir`` are removed first (nothing else there is touched)."""
@@ -141,6 +166,133 @@ def run_demo(
     out_dir.mkdir(parents=True, exist_ok=True)
     if not resume:
         _fresh(out_dir)
+    if live:
+        return _run_live(world, out_dir, duration_s, speed_m_s)
+    return _run_recorded(world, out_dir, duration_s, speed_m_s)
+
+
+def _start_hq(out_dir: Path, log_file: IO[bytes], *extra: str) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [
+            sys.executable, "-m", "hq.cli", "--db", str(out_dir / "hq.sqlite"),
+            "--export-dir", str(out_dir / "exports"), *extra,
+        ],
+        stdout=subprocess.PIPE, stderr=log_file,
+    )  # fmt: skip
+
+
+def _listening_port(hq: subprocess.Popen[bytes], timeout_s: float = 30.0) -> int:
+    """The UDP port rescue-hq printed (``rescue-hq: listening on udpin:H:P``)."""
+    assert hq.stdout is not None
+    found: list[int] = []
+
+    def read() -> None:
+        assert hq.stdout is not None
+        for raw in hq.stdout:
+            line = raw.decode(errors="replace")
+            if "listening on" in line and not found:
+                found.append(int(line.rsplit(":", 1)[1]))
+        # keep reading (the HQ's event lines) so its pipe never fills
+
+    threading.Thread(target=read, daemon=True).start()
+    deadline = time.monotonic() + timeout_s
+    while not found:
+        if hq.poll() is not None or time.monotonic() > deadline:
+            raise DemoError("rescue-hq did not start (see hq.log)")
+        time.sleep(0.05)
+    return found[0]
+
+
+def _deliver(reports: list[ReplayReport], hq_address: tuple[str, int]) -> int:
+    """Send each report, in order, until rescue-hq acknowledges it; how many resends."""
+    resends = 0
+    robots: dict[int, SimRobot] = {}
+    try:
+        for seq, r in enumerate(reports, start=1):
+            sysid = r.report.robot_sysid
+            robot = robots.get(sysid) or robots.setdefault(sysid, SimRobot(sysid, hq_address))
+            msg = convert.victim_report_to_msg(
+                r.report, seq, r.flags, r.t_unix_s, r.merged_into, robot.m
+            )
+            for attempt in range(_SEND_ATTEMPTS):
+                robot.send(msg)
+                try:
+                    robot.wait_for("RESCUE_ACK", _ACK_TIMEOUT_S, seq=seq)
+                    break
+                except TimeoutError:
+                    resends += 1
+                    if attempt == _SEND_ATTEMPTS - 1:
+                        raise DemoError(f"rescue-hq did not acknowledge report {seq}") from None
+    finally:
+        for robot in robots.values():
+            robot.close()
+    return resends
+
+
+def _route_s(world: World, speed_m_s: float) -> float:
+    return Trajectory(
+        world.start_ne_m,
+        world.start_heading_rad,
+        route_of(world),
+        speed_m_s=speed_m_s,
+        seed=world.seed,
+    ).duration_s()
+
+
+def _run_recorded(
+    world: World, out_dir: Path, duration_s: float | None, speed_m_s: float
+) -> DemoResult:
+    mission = out_dir / "mission"
+    print(
+        f"demo: world {world.name or world.seed!r} with {len(world.victims)} victims; "
+        f"recording the mission in simulated time ({DEMO_FPS:g} frames/s) into {mission}",
+        flush=True,
+    )
+    if duration_s is None:
+        duration_s = _route_s(world, speed_m_s) + 2.0
+    # The mission is set to end now (whole seconds), so the HQ's "last seen" reads
+    # naturally; only differences of times enter the figures.
+    rec = record(
+        world,
+        mission,
+        duration_s=duration_s,
+        fps=DEMO_FPS,
+        start_unix_s=float(math.floor(time.time() - duration_s)),
+        speed_m_s=speed_m_s,
+    )
+    print(
+        f"demo: {rec.frames} frames of a {rec.duration_s:.0f} s mission; the companion's "
+        "pipeline (the Pi's default person detector) processes every one",
+        flush=True,
+    )
+    result = replay(
+        load_config(mission / "camera.toml"), mission / "mission.tlog", mission / "frames"
+    )
+    print(f"demo: {len(result.reports)} reports decided; sending them to rescue-hq", flush=True)
+    with (out_dir / "hq.log").open("wb") as hq_log:
+        hq = _start_hq(
+            out_dir, hq_log, "--listen", "udpin:127.0.0.1:0", "--no-table", "--no-web",
+            "--sbs", "off",
+        )  # fmt: skip
+    try:
+        resends = _deliver(result.reports, ("127.0.0.1", _listening_port(hq)))
+        if resends:
+            print(f"demo: {resends} report(s) resent before rescue-hq acknowledged them")
+    finally:
+        hq_exit = _stop(hq, "rescue-hq")
+    truth = load_truth(mission / "ground_truth.json")
+    first_in_view = {
+        v.victim_id: v.first_in_view_unix_s
+        for v in truth.victims
+        if v.first_in_view_unix_s is not None
+    }
+    reported_at = {(result.robot_sysid, vid): t for vid, t in result.first_reported_unix_s.items()}
+    return _summarise(world, out_dir, result.route_ne_m, first_in_view, 0, hq_exit, reported_at)
+
+
+def _run_live(
+    world: World, out_dir: Path, duration_s: float | None, speed_m_s: float
+) -> DemoResult:
     env = dict(os.environ)
     python = sys.executable
     with LiveSim(world, speed_m_s=speed_m_s) as sim:
@@ -191,12 +343,15 @@ def _summarise(
     first_in_view: dict[int, float],
     companion_exit: int,
     hq_exit: int,
+    reported_at: dict[tuple[int, int], float] | None = None,
 ) -> DemoResult:
-    """Score and map what the HQ holds (the victims ``rescue-hq list`` shows)."""
+    """Score and map what the HQ holds (the victims ``rescue-hq list`` shows).
+    ``reported_at``: when each (robot, victim) was first reported, on the mission's
+    clock; default: when the HQ first received it."""
     registry = Registry(out_dir / "hq.sqlite")
     try:
         victims = [v for v in hq_victims(registry) if v.state is not TrackState.FALSE_ALARM]
-        received = registry.first_received_unix_s()
+        received = registry.first_received_unix_s() if reported_at is None else reported_at
     finally:
         registry.close()
     reported = [
@@ -289,4 +444,7 @@ def print_summary(result: DemoResult) -> None:
     print(result.score_text)
     print(f"\nmission map: {result.map_png}")
     print(f"HQ exports: {result.out_dir / 'exports'} (GeoJSON, KML, CSV)")
-    print(f"logs: {result.out_dir / 'companion.log'}, {result.out_dir / 'hq.log'}")
+    logs = [result.out_dir / n for n in ("companion.log", "hq.log")]
+    print("logs: " + ", ".join(str(p) for p in logs if p.exists()))
+    if (result.out_dir / "mission").is_dir():
+        print(f"recorded mission: {result.out_dir / 'mission'} (rescue-companion replay)")

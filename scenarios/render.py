@@ -145,8 +145,9 @@ class Renderer:
             hits[:] = False
         t = np.full(dz.shape, np.inf, np.float32)
         np.divide(np.float32(height), dz, out=t, where=hits)
-        north = dn * t
-        east = de * t
+        with np.errstate(invalid="ignore"):  # 0 * inf off the floor; set below
+            north = dn * t
+            east = de * t
         north += np.float32(centre[0])
         east += np.float32(centre[1])
         north[~hits] = -1e6

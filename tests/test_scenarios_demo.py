@@ -1,0 +1,56 @@
+"""`rescue-sim demo` as `make demo` runs it: a recorded mission through the companion's
+pipeline to a real rescue-hq, with the table, the map and the exports a newcomer
+reads. A real subprocess; the mission is cut short to keep the test run short."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hq.registry import Registry
+from hq.view import hq_victims
+
+REPO = Path(__file__).resolve().parents[1]
+# The mixed preset's whole-body victim (T1) is confirmed about 30 s into the mission.
+MISSION_S = 36.0
+
+
+def _demo(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    cmd = [sys.executable, "-m", "scenarios.cli", "demo", "--out", str(out), *extra]
+    return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=280)
+
+
+def _table(stdout: str) -> list[str]:
+    """The per-victim lines of the ground-truth table."""
+    return [line for line in stdout.splitlines() if line.startswith("T")]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_demo_reports_to_the_hq_maps_and_starts_fresh_unless_resumed(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    first = _demo(out, "--duration-s", str(MISSION_S))
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert "Traceback" not in first.stderr
+    lines = _table(first.stdout)
+    assert lines[0].split()[:4] == ["T1", "LIGHT", "V1", "LIGHT"]
+    assert "after first in view" in lines[0]
+    assert "false victims 0" in first.stdout
+    assert (out / "mission_map.png").stat().st_size > 10_000
+    assert (out / "exports" / "victims.csv").read_text().count("\n") == 2  # header + V1
+    with Registry(out / "hq.sqlite") as reg:
+        assert [v.hq_id for v in hq_victims(reg)] == [1]
+    # --resume keeps what the HQ holds (a 2 s mission finds nobody new) ...
+    resumed = _demo(out, "--duration-s", "2", "--resume")
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    with Registry(out / "hq.sqlite") as reg:
+        assert [v.hq_id for v in hq_victims(reg)] == [1]
+    # ... and without it every run starts afresh: the same 2 s mission, nothing held.
+    fresh = _demo(out, "--duration-s", "2")
+    assert fresh.returncode == 0, fresh.stderr[-2000:]
+    assert "T1           LIGHT      not reported" in fresh.stdout
+    with Registry(out / "hq.sqlite") as reg:
+        assert hq_victims(reg) == []
