@@ -21,13 +21,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from companion.errors import CompanionError
 from fusion.params import GeolocationParams, TrackerParams
 from mavlink_io.errors import LinkSpecError
 from mavlink_io.linkspec import parse_link
 from mavlink_io.vehicle import MAX_STREAM_RATE_HZ
 
 
-class ConfigError(Exception):
+class ConfigError(CompanionError):
     """The configuration cannot be used. The message is one line for a person."""
 
 

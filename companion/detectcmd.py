@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from companion.config import Config, DetectorConfig
+from companion.errors import CompanionError
 from companion.vision import Detector, FrameGeometry, assess, make_detector
 from fusion.types import Detection, PoseSample, Urgency
 
@@ -34,7 +35,7 @@ URGENCY_BGR = {
 }
 
 
-class ImageError(Exception):
+class ImageError(CompanionError):
     """An image file that cannot be used; the message names it and says why."""
 
 

@@ -25,6 +25,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from companion.errors import CompanionError
+
 log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
@@ -39,7 +41,7 @@ CREATE TABLE IF NOT EXISTS outbox (
 """
 
 
-class StoreError(Exception):
+class StoreError(CompanionError):
     """The state database cannot be opened or used; the message names the file."""
 
 

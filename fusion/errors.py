@@ -1,6 +1,14 @@
-"""Exceptions of the fusion core.
+"""The project's exception root, and the exceptions of the fusion core.
 
-    FusionError                  any failure of the fusion math or its saved state
+Every error the project raises on purpose derives from ``RescueError``; each package
+has one base under it (``FusionError``, ``mavlink_io.errors.MavlinkIOError``,
+``companion.errors.CompanionError``, ``hq.errors.HqError``,
+``scenarios.errors.SimError``, ``npmfetch.FetchError``), so a caller can catch one
+package's failures, or all of them, without catching the bugs (a ``TypeError`` is
+never one of ours). Validation errors are also ``ValueError``s.
+
+    RescueError
+    └── FusionError                  any failure of the fusion math or its saved state
     ├── PoseUnavailable          no trustworthy pose at the requested time (.reason)
     └── GeolocationRejected      a pixel does not give a usable floor point (.reason)
 
@@ -10,7 +18,11 @@ A malformed tracker snapshot raises FusionError itself, naming the bad field.
 from __future__ import annotations
 
 
-class FusionError(Exception):
+class RescueError(Exception):
+    """Root of every error this project raises on purpose."""
+
+
+class FusionError(RescueError):
     """Base class of every error raised by ``fusion``."""
 
 

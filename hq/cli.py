@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 from fusion.types import GlobalOrigin
 from hq import epoch, export, table
 from hq.app import HqApp, HqOptions
+from hq.errors import HqError
 from hq.merge import Origins
 from hq.records import OperatorAction
 from hq.registry import Registry, RegistryCorrupt, RegistryError
@@ -56,7 +57,7 @@ DEFAULT_WEB = "127.0.0.1:8080"
 _SUBCOMMANDS = ("run", "mark", "export", "list", "assets")
 
 
-class UsageError(Exception):
+class UsageError(HqError):
     """Bad usage or configuration: exit 2."""
 
 

@@ -24,13 +24,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from hq.errors import HqError
+
 log = logging.getLogger(__name__)
 
 IDS_PER_EPOCH = 1_000_000
 _SIDE_FILES = ("-wal", "-shm")
 
 
-class EpochError(Exception):
+class EpochError(HqError):
     """The epoch file cannot be written; the message names it."""
 
 

@@ -33,6 +33,7 @@ from enum import Enum
 from typing import Any
 
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
+from hq.errors import HqError
 
 MAX_UNIX_S = 4_102_444_800.0  # 2100-01-01T00:00:00Z
 MAX_REPORT_TIME_USEC = int(MAX_UNIX_S) * 1_000_000
@@ -112,7 +113,7 @@ class Robot:
     origin: GlobalOrigin | None
 
 
-class BadRecord(ValueError):
+class BadRecord(HqError, ValueError):
     """A value the HQ cannot use; the message names the field."""
 
 

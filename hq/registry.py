@@ -33,6 +33,7 @@ from pathlib import Path
 
 from fusion.types import GlobalOrigin, TrackState
 from hq import epoch, merge
+from hq.errors import HqError
 from hq.merge import Origins, Placed, placed
 from hq.records import (
     Action,
@@ -93,7 +94,7 @@ CREATE TABLE IF NOT EXISTS actions (
 """
 
 
-class RegistryError(Exception):
+class RegistryError(HqError):
     """The registry file cannot be used; the message names the file."""
 
 

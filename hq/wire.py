@@ -17,6 +17,7 @@ from typing import Any
 
 from fusion.types import GlobalOrigin, VictimReport
 from hq import records
+from hq.errors import HqError
 from hq.records import IncomingReport, RobotStatus
 from mavlink_io import convert, tunnel
 from mavlink_io.codec import Codec
@@ -24,7 +25,7 @@ from mavlink_io.codec import Codec
 MavMessage = Any
 
 
-class BadMessage(ValueError):
+class BadMessage(HqError, ValueError):
     """A message from a robot whose fields the HQ cannot use; the text names the field."""
 
 

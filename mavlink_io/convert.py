@@ -26,6 +26,7 @@ from typing import Any
 from fusion.geodesy import ned_to_geodetic
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
 from mavlink_io import dialect
+from mavlink_io.errors import MavlinkIOError
 
 MavMessage = Any
 
@@ -48,7 +49,7 @@ MAX_SPEED_M_S = 500.0
 ALT_RANGE_M = (-1000.0, 20_000.0)  # AMSL: below the Dead Sea to above any mountain
 
 
-class BadField(ValueError):
+class BadField(MavlinkIOError, ValueError):
     """A field of an autopilot message is not finite or out of range."""
 
 

@@ -1,6 +1,6 @@
 """Exceptions of mavlink_io.
 
-MavlinkIOError
+MavlinkIOError (a fusion.errors.RescueError)
 ├── DialectError        the dialect XML does not generate or import
 ├── LinkError           a link cannot be opened or used
 │   └── LinkSpecError   a link URL is malformed
@@ -12,8 +12,10 @@ MavlinkIOError
 
 from __future__ import annotations
 
+from fusion.errors import RescueError
 
-class MavlinkIOError(Exception):
+
+class MavlinkIOError(RescueError):
     """Base of every error raised by mavlink_io."""
 
 

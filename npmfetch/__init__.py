@@ -18,10 +18,12 @@ import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
+from fusion.errors import RescueError
+
 NPM_REGISTRY = "https://registry.npmjs.org"
 
 
-class FetchError(Exception):
+class FetchError(RescueError):
     """A package could not be downloaded, or is not what it must be; one line."""
 
 

@@ -46,6 +46,7 @@ from hq.registry import Registry
 from hq.simrobot import SimRobot
 from hq.view import hq_victims
 from mavlink_io import convert
+from scenarios.errors import SimError
 from scenarios.live import LiveSim
 from scenarios.motion import Trajectory, route_of
 from scenarios.record import record
@@ -69,7 +70,7 @@ _ACK_TIMEOUT_S = 2.0
 _SEND_ATTEMPTS = 5
 
 
-class DemoError(Exception):
+class DemoError(SimError):
     """The demo could not run (rescue-hq did not start or answer)."""
 
 

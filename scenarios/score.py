@@ -37,12 +37,13 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from fusion.types import Urgency
+from scenarios.errors import SimError
 
 GATE_M = 1.0
 CHI2_95_2DOF = 5.991
 
 
-class ScoreInputError(ValueError):
+class ScoreInputError(SimError, ValueError):
     """A truth or report file cannot be used; the message names the file and key."""
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from fusion.types import GlobalOrigin, Urgency
 from scenarios import body3d
 from scenarios.body3d import PATTERNS, POSTURES, Pattern, Posture
+from scenarios.errors import SimError
 
 RGB = tuple[int, int, int]
 PointNE = tuple[float, float]
@@ -44,7 +45,7 @@ PRESETS: tuple[str, ...] = (
 DEFAULT_ORIGIN = GlobalOrigin(lat_deg=40.071, lon_deg=-105.2296, alt_m=1580.0)
 
 
-class WorldError(ValueError):
+class WorldError(SimError, ValueError):
     """A world file or world description cannot be used; the message names the key."""
 
 

@@ -22,12 +22,14 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
+from companion.errors import CompanionError
+
 log = logging.getLogger(__name__)
 
 _JOIN_TIMEOUT_S = 3.0  # how long close() waits for a grabber blocked in the driver
 
 
-class CameraError(Exception):
+class CameraError(CompanionError):
     """The camera failed; the message says which camera and why."""
 
 

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from companion.errors import CompanionError
 from fusion.types import Detection
 
 if TYPE_CHECKING:
@@ -45,7 +46,7 @@ PlaneMap = Callable[[np.ndarray, float], np.ndarray]  # (pixels, height_m) -> (N
 PixelMap = Callable[[np.ndarray], np.ndarray]  # floor (N, 2) -> pixels (N, 2), NaN if not in front
 
 
-class VisionError(Exception):
+class VisionError(CompanionError):
     """The vision step cannot run as configured; the message says why."""
 
 

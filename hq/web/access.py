@@ -20,12 +20,14 @@ from urllib.parse import parse_qs
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, PlainTextResponse, Response
 
+from hq.errors import HqError
+
 COOKIE = "rescue_hq_token"
 MIN_TOKEN_CHARS = 12
 _MAX_FORM_BYTES = 1024
 
 
-class AccessConfigError(ValueError):
+class AccessConfigError(HqError, ValueError):
     """The console's address and token do not go together; one line."""
 
 

@@ -12,6 +12,7 @@ import sqlite3
 import time
 from pathlib import Path
 
+from hq.errors import HqError
 from hq.web.state import Note
 
 MAX_NOTE_CHARS = 500
@@ -22,7 +23,7 @@ _SCHEMA = (
 )
 
 
-class BadNote(ValueError):
+class BadNote(HqError, ValueError):
     """An empty or too long note; the message says which."""
 
 

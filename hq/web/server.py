@@ -45,6 +45,7 @@ from starlette.responses import (
 )
 from starlette.routing import Route
 
+from hq.errors import HqError
 from hq.records import OperatorAction
 from hq.registry import Registry, RegistryError
 from hq.view import HqVictim, hq_victims
@@ -65,7 +66,7 @@ _ACTIONS = {
 }
 
 
-class ConsoleError(Exception):
+class ConsoleError(HqError):
     """The console cannot start (the address is taken or not ours); one line."""
 
 
