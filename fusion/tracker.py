@@ -111,12 +111,13 @@ class _Track:
 
 
 def _new_filter(x: FloatArray, p: FloatArray) -> KalmanFilter:
+    """A filter holding one victim's state x and covariance P. Its model (a static
+    target, F = I; the position observed, H = I; Q = q dt I) is applied to all
+    tracks at once by ``VictimTracker._predict`` and ``kalman_update`` (the filter's
+    own predict/update are never called; a test checks the batch equals them)."""
     kf = KalmanFilter(dim_x=2, dim_z=2)
     kf.x = np.array(x, dtype=float).reshape(2, 1)
     kf.P = np.array(p, dtype=float)
-    kf.F = np.eye(2)  # static target
-    kf.H = np.eye(2)  # we observe the position itself
-    kf.Q = np.zeros((2, 2))  # q dt I, applied per step in VictimTracker._predict
     return kf
 
 

@@ -326,6 +326,19 @@ def test_batched_update_equals_filterpy() -> None:
         np.testing.assert_allclose(p_new[i], kf.P, rtol=1e-12, atol=1e-14)
 
 
+def test_batched_predict_equals_filterpy_with_the_static_model() -> None:
+    # F = I, Q = q dt I: the tracker's one-batch predict is filterpy's predict.
+    tracker = VictimTracker(PARAMS)
+    track = tracker._by_victim[confirmed_victim(tracker, 1.0, 2.0, 0.0)]
+    kf = KalmanFilter(dim_x=2, dim_z=2)
+    kf.x, kf.P, kf.F = track.kf.x.copy(), track.kf.P.copy(), np.eye(2)
+    dt = 0.5 * PARAMS.max_unseen_growth_s  # within the growth window
+    tracker._predict([track], track.t_filter_unix_s + dt)
+    kf.predict(Q=PARAMS.process_noise_m2_s * dt * np.eye(2))
+    np.testing.assert_allclose(track.kf.P, kf.P, rtol=1e-12)
+    np.testing.assert_allclose(track.kf.x, kf.x)
+
+
 def test_victims_4_m_apart_stay_apart_after_15_minutes_out_of_view() -> None:
     tracker = VictimTracker(PARAMS)
     a = confirmed_victim(tracker, 0.0, 0.0, 0.0)
