@@ -20,7 +20,7 @@ from pathlib import Path
 from hq.app import HqApp, HqOptions
 from hq.registry import Registry
 from hq.simrobot import SimRobot
-from hq.transport import UdpHubLink
+from mavlink_io.hub import UdpHubLink
 
 _LATENCY_REPORTS = 200
 _INGEST_ROBOTS = 3

@@ -41,7 +41,6 @@ from hq.records import (
 from hq.registry import Registry, RegistryBusy, RegistryError, RegistryFull
 from hq.sbs import SbsServer
 from hq.sources import SourceTable
-from hq.transport import Endpoint, Peer
 from hq.unstored import UnstoredReports
 from hq.view import hq_victims
 from hq.web.state import LiveRobots
@@ -52,6 +51,7 @@ from mavlink_io.dialect import (
     RESCUE_VICTIM_REPORT_ID,
 )
 from mavlink_io.errors import LinkError
+from mavlink_io.hub import Endpoint, Peer
 from mavlink_io.reliable import Outbox
 from mavlink_io.signing import Signing
 

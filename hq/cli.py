@@ -35,10 +35,10 @@ from hq.merge import Origins
 from hq.records import OperatorAction
 from hq.registry import Registry, RegistryCorrupt, RegistryError
 from hq.sbs import DEFAULT_ADDRESS, SbsServer
-from hq.transport import SingleLink, UdpHubLink, open_endpoint
 from hq.view import build, hq_victims
 from hq.web.state import LiveRobots
 from mavlink_io.errors import LinkError, LinkSpecError, SigningError
+from mavlink_io.hub import SingleLink, UdpHubLink, open_endpoint
 from mavlink_io.linkspec import LinkSpec, parse_link
 from mavlink_io.signing import load_signing
 

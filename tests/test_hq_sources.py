@@ -19,8 +19,8 @@ from hq import app as hq_app
 from hq.app import HqApp, HqOptions
 from hq.registry import Registry
 from hq.simrobot import SimRobot
-from hq.transport import UdpHubLink
 from mavlink_io.codec import Codec
+from mavlink_io.hub import UdpHubLink
 
 
 def _wait_until(condition, timeout_s: float) -> bool:  # type: ignore[no-untyped-def]

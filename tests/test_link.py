@@ -83,7 +83,7 @@ def test_open_link_chooses_transport_from_spec() -> None:
 
 def test_listening_links_name_the_os_chosen_port_and_refuse_it_once_closed() -> None:
     """Tests and the sim bind port 0; the chosen port is what a peer must be told."""
-    from hq.transport import UdpHubLink
+    from mavlink_io.hub import UdpHubLink
 
     links = [UdpInLink("127.0.0.1", 0), TcpInLink("127.0.0.1", 0), UdpHubLink("127.0.0.1", 0)]
     for link in links:

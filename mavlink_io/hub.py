@@ -1,4 +1,5 @@
-"""The HQ's links: a UDP hub that answers every robot, and the standard links.
+"""Links for a ground station of many robots: a UDP hub that answers every robot,
+and the standard links behind the same seam (rescue-hq uses these).
 
 A plain ``udpin`` link (mavlink_io.link.UdpInLink, like mavutil) replies to the
 address that spoke last. That is right for one ground station behind one router,
