@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fusion.geodesy import geodetic_to_ned, ned_to_geodetic
+from fusion.kalman import mahalanobis2 as fusion_mahalanobis2
 from fusion.types import Cov2, GlobalOrigin, VictimReport
 
 CHI2_GATE_2DOF_99 = 9.2103  # scipy.stats.chi2.ppf(0.99, df=2)
@@ -91,7 +92,8 @@ def mahalanobis2(a: Placed | Fused, b: Placed | Fused) -> float | None:
     if delta is None:
         return None
     s = _cov(a.cov_ne_m2) + _cov(b.cov_ne_m2)  # S: covariance of the difference
-    return float(delta @ np.linalg.solve(s, delta))
+    d2, _det = fusion_mahalanobis2(np.asarray(delta, float), s)
+    return float(d2)
 
 
 def fuse(members: Sequence[Placed]) -> Fused:

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from fusion.kalman import mahalanobis2
 from fusion.types import Urgency
 from scenarios.errors import SimError
 
@@ -179,10 +180,11 @@ def _mahalanobis2(t: TrueVictim, r: ReportedVictim) -> float | None:
     if r.cov_ne_m2 is None:
         return None
     err = np.array(_error_ne_m(t, r.north_m, r.east_m))
-    try:
-        return float(err @ np.linalg.solve(np.array(r.cov_ne_m2, float), err))
-    except np.linalg.LinAlgError:  # a singular covariance claims certainty: never consistent
+    cov = np.array(r.cov_ne_m2, float)
+    if np.linalg.det(cov) <= 0.0:  # a singular covariance claims certainty: never consistent
         return math.inf
+    d2, _det = mahalanobis2(err, cov)
+    return float(d2)
 
 
 def score(
