@@ -84,10 +84,6 @@ class PeopleParams:
     # many of those run per frame, taking turns (a live camera sees a body on many
     # frames); a large number runs all of them on every frame, as for a single photo.
     extra_passes: int = 1
-    # A body the detector finds only in a turned frame (where it is out of its
-    # training) counts when the landmark model is this sure (a thermal dog was 0.82,
-    # real lying people 0.89-1.0: bench/real_images.py).
-    turned_min_flag: float = 0.85
     far_tiles: bool = True  # tiles of the far floor band (needs the frame's geometry)
     # Without a geometry (a photo) the far band is unknown: a 2:1 tile of this share of
     # the frame's width at its centre zooms a small or distant body by 1/share.
@@ -311,23 +307,13 @@ class PeopleDetector:
         return cv2.resize(prob, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
 
     def _body(
-        self,
-        rgb: np.ndarray,
-        seg: np.ndarray,
-        score: float,
-        kp: np.ndarray,
-        box: np.ndarray,
-        turned: bool = False,
-    ) -> _Body | None:
-        """The body around a person detection; None for one from a turned frame that
-        the landmark model does not confirm with ``turned_min_flag``."""
+        self, rgb: np.ndarray, seg: np.ndarray, score: float, kp: np.ndarray, box: np.ndarray
+    ) -> _Body:
         p = self.params
         hw = rgb.shape[:2]
         rect = _rect_from_keypoints(kp)
         out = self._landmarks(to_range(rect.crop(rgb, LANDMARK_PX), 0.0, 1.0))
         flag = float(out[1].reshape(-1)[0])
-        if turned and flag < p.turned_min_flag:
-            return None
         region = rect.paste(np.ones((LANDMARK_PX, LANDMARK_PX), np.uint8), hw)
         cues = {"person"}
         points = seen = None
@@ -376,9 +362,7 @@ class PeopleDetector:
                 hy = int(np.clip(kp[0, 1], 0, h - 1))
                 if any(b.region[hy, hx] for b in bodies):
                     continue  # the same body, seen again by a turned pass
-                body = self._body(rgb, seg, d.score, kp, box, turned=view.turn is not None)
-                if body is not None:
-                    _add_body(bodies, body, p.same_body_overlap)
+                _add_body(bodies, self._body(rgb, seg, d.score, kp, box), p.same_body_overlap)
         parts = [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
         parts += [("hand", x) for x in self._ssd(self._palm, PALM_SPEC, "palm", rgb, 0.0)]
         for kind, (d, box, _kp) in parts:
