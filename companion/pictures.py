@@ -248,6 +248,7 @@ class PictureSender:
         self._lock = threading.Lock()
         self._waiting: dict[int, StoredPicture] = {}  # by victim
         self._current: picture.Transfer | None = None
+        self._started_s = 0.0  # when the current transfer began
         self._capacity = 2.0 * chunk_wire_bytes(picture.CHUNK_BYTES, signed)
         self._tokens = self._capacity
         self._last_s = clock()
@@ -279,9 +280,10 @@ class PictureSender:
         if t.result == picture.RESULT_STORED:
             self.counters.delivered += 1
             log.info(
-                "picture %d of victim %d delivered (%d bytes, %d chunks sent for %d)",
+                "picture %d of victim %d delivered in %.1f s (%d bytes, %d chunks sent for %d)",
                 t.picture_id,
                 t.victim_id,
+                self._clock() - self._started_s,
                 t.size,
                 t.chunks_sent,
                 len(t.chunks),
@@ -305,6 +307,7 @@ class PictureSender:
                 newer = min(self._waiting.values(), key=lambda p: p.picture_id)
             del self._waiting[newer.victim_id]
         self._current = picture.Transfer(newer.picture_id, newer.victim_id, newer.jpeg)
+        self._started_s = self._clock()
         return self._current
 
     def _refill(self, now: float) -> None:
