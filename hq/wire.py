@@ -78,11 +78,15 @@ def origin_from_msg(msg: MavMessage) -> GlobalOrigin | None:
     """
     if msg.latitude == 0 and msg.longitude == 0:
         return None
-    origin = convert.origin_from_gps_global_origin(msg)
-    if origin is None:  # convert refuses what is off the globe
+    try:  # convert refuses what is off the globe or at an altitude no vehicle has
+        origin = convert.parse_gps_global_origin(msg)
+    except convert.BadField as exc:
         raise BadMessage(
-            f"latitude {msg.latitude} / longitude {msg.longitude} (degE7) off the globe"
-        )
+            f"latitude {msg.latitude} / longitude {msg.longitude} (degE7) / altitude "
+            f"{msg.altitude} (mm): {exc}"
+        ) from None
+    if origin is None:
+        return None
     try:
         return records.check_origin(origin)
     except records.BadRecord as exc:
