@@ -249,7 +249,10 @@ class PictureSender:
         self._waiting: dict[int, StoredPicture] = {}  # by victim
         self._current: picture.Transfer | None = None
         self._started_s = 0.0  # when the current transfer began
-        self._capacity = 2.0 * chunk_wire_bytes(picture.CHUNK_BYTES, signed)
+        # Never two chunks at once (the bucket holds less than two): a report waits
+        # behind at most one chunk in a radio's buffer (23 ms at 57,600 baud); what a
+        # late poll earned beyond one chunk is kept, so the rate is still met.
+        self._capacity = 2.0 * chunk_wire_bytes(picture.CHUNK_BYTES, signed) - 1.0
         self._tokens = self._capacity
         self._last_s = clock()
         self.counters = SenderCounters()

@@ -267,7 +267,7 @@ class Service:
             signed=self.signing is not None,
         )
         for p in kept:
-            if not p.delivered:
+            if config.pictures.enabled and not p.delivered:
                 sender.offer(p)
         return PictureChooser(config.pictures, kept), sender
 

@@ -133,7 +133,9 @@ def test_sender_keeps_to_its_rate_and_finishes_on_stored() -> None:
     )
     sender.offer(StoredPicture(3, 10, 1.0, 0.0, _jpeg(6000)))
     for _ in range(100):  # 10 s, polled every 0.1 s
+        before = len(sent)
         sender.poll()
+        assert len(sent) - before <= 1  # never two chunks at once: a report waits for one
         clock.t += 0.1
     wire = sum(chunk_wire_bytes(len(c.data), False) for c in sent)
     assert wire <= 1000.0 * 10.0 + 2 * chunk_wire_bytes(86, False)
