@@ -23,6 +23,15 @@ companion runs on its own core (as in bench/e2e.py), the rest on the other.
   first, pictures at a bounded rate below what the radio carries);
 - radio: bytes a second robot-to-HQ and drops because its buffer was full (a full
   buffer would drop reports too).
+
+A mission confirms few victims in a few minutes, so the same path is also timed
+under steady load ("steady"): a robot (hq.simrobot, in TUNNEL to the same rover
+router, radio and rescue-hq) sends a report of a new victim every 0.5 s through
+mavlink_io.reliable.Outbox (resent after 1 s, as the companion does) and, in the
+run with pictures, keeps companion.pictures.PictureSender busy with the mission's
+JPEGs one after the other, with the reporter thread's rule: reports first,
+pictures only when no report is due, at the default 1000 B/s; 60 s without and 60 s
+with pictures, twice, alternated (the machine is shared), pooled.
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import select
 import signal
 import sqlite3
 import statistics
@@ -40,11 +50,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
+from companion.config import PicturesConfig
+from companion.pictures import PictureSender
+from companion.store import StoredPicture
+from hq.simrobot import SimRobot
+from mavlink_io import picture
+from mavlink_io.reliable import Outbox
 from scenarios.live import LiveSim
 from scenarios.motion import lawnmower
 from scenarios.radio import Radio
+from scenarios.rover import SimRover
 from scenarios.world import preset
 
 MISSION_S = 180.0
@@ -55,10 +73,101 @@ _DELIVERED = re.compile(
 )
 
 
+STEADY_S = 60.0
+REPORT_PERIOD_S = 0.5
+
+
+@dataclasses.dataclass
+class Steady:
+    report_latency_s: list[float]
+    transfers_s: list[float]
+    chunks_per_picture: float  # chunks sent per picture delivered (with resends and polls)
+    picture_chunks: int  # chunks in one picture
+    overflow: int
+
+
+def _steady(jpegs: list[bytes], seconds: float) -> Steady:
+    """Reports every REPORT_PERIOD_S through the rover and the radio, with pictures
+    flowing all the time when ``jpegs`` is not empty."""
+    with (
+        tempfile.TemporaryDirectory(prefix="bench-pictures-") as tmp,
+        SimRover(preset("light"), ["udpin:127.0.0.1:0", "udpin:127.0.0.1:0"], seed=3) as rover,
+        Radio(rover.local_address(1), baud=BAUD, loss=LOSS, seed=11) as radio,
+    ):
+        hq_db = Path(tmp) / "hq.sqlite"
+        hq = subprocess.Popen(
+            [sys.executable, "-m", "hq.cli", "--listen", radio.ground_url, "--db", str(hq_db),
+             "--no-table", "--no-web", "--sbs", "off"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        robot = SimRobot(1, rover.local_address(0), tunnel=True)
+        m = robot.codec.module
+        outbox = Outbox(robot.send, initial_s=1.0, max_s=30.0)
+        started: dict[int, float] = {}
+        done: list[float] = []
+
+        def finished(_victim: int, picture_id: int, _result: int) -> None:
+            done.append(time.monotonic() - started[picture_id])
+
+        sender = PictureSender(
+            PicturesConfig(), lambda c: robot.send(c.to_msg(m)), finished, clock=time.monotonic
+        )
+        n = 0
+        next_report = next_beat = time.monotonic() + 3.0  # rescue-hq starts meanwhile
+        end = next_report + seconds
+        try:
+            while (now := time.monotonic()) < end:
+                if now >= next_beat:
+                    robot.heartbeat()
+                    next_beat = now + 1.0
+                if now >= next_report:
+                    n += 1
+                    outbox.submit(robot.report_msg(robot.victim(n, 0.1 * n, 1.0)))
+                    next_report = now + REPORT_PERIOD_S
+                if jpegs and sender.pending == 0:
+                    pid = 1_000_000 + len(started)
+                    started[pid] = now
+                    sender.offer(
+                        StoredPicture(pid, pid, 1.0, 0.0, jpegs[len(started) % len(jpegs)])
+                    )
+                for rx in robot.receive(0.0):
+                    if rx.msg.get_type() == "RESCUE_ACK":
+                        outbox.on_ack(rx.msg)
+                    elif rx.msg.get_type() == "RESCUE_PICTURE_ACK":
+                        sender.on_ack(picture.Ack.from_msg(rx.msg))
+                outbox.poll()
+                if outbox.seconds_until_due() != 0.0:  # the reporter's rule: reports first
+                    sender.poll()
+                waits = [next_report - now, next_beat - now, outbox.seconds_until_due(),
+                         sender.seconds_until_due()]  # fmt: skip
+                select.select(
+                    [robot.sock], [], [], max(0.001, min(w for w in waits if w is not None))
+                )
+            time.sleep(2.0)  # the last reports cross the radio
+        finally:
+            robot.close()
+            hq.send_signal(signal.SIGTERM)
+            hq.wait(timeout=30)
+        db = sqlite3.connect(hq_db)
+        latency = [
+            float(t) - u / 1e6
+            for t, u in db.execute("SELECT received_unix_s, report_time_usec FROM reports")
+        ]
+        db.close()
+        return Steady(
+            latency,
+            done,
+            sender.counters.chunks / max(1, len(done)),
+            picture.chunk_count(len(jpegs[0])) if jpegs else 0,
+            radio.up.counters.overflow + radio.down.counters.overflow,
+        )
+
+
 @dataclasses.dataclass
 class Run:
     report_latency_s: list[tuple[float, float]]  # (arrival unix s, latency s)
     pictures: list[dict[str, Any]]
+    jpegs: list[bytes]
     transfers: list[tuple[float, int, int, int]]  # (seconds, bytes, chunks sent, chunks)
     up_bytes_s: float
     overflow: int
@@ -118,12 +227,13 @@ def _mission(pictures: bool, mission_s: float) -> Run:
             (float(t), float(t) - u / 1e6)
             for t, u in db.execute("SELECT received_unix_s, report_time_usec FROM reports")
         ]
-        stored = {
-            (int(v), int(p)): (float(t), int(n))
-            for v, p, t, n in db.execute(
-                "SELECT victim_id, picture_id, received_unix_s, length(jpeg) FROM pictures"
-            )
-        }
+        stored = {}
+        jpegs = []
+        for v, p, t, j in db.execute(
+            "SELECT victim_id, picture_id, received_unix_s, jpeg FROM pictures"
+        ):
+            stored[(int(v), int(p))] = (float(t), len(j))
+            jpegs.append(bytes(j))
         db.close()
         kept = {}
         state_db = out / "state" / "companion.sqlite"
@@ -148,6 +258,7 @@ def _mission(pictures: bool, mission_s: float) -> Run:
         return Run(
             reports,
             shown,
+            jpegs,
             transfers,
             radio.up.counters.delivered_bytes / elapsed,
             radio.up.counters.overflow + radio.down.counters.overflow,
@@ -165,9 +276,44 @@ def _stats(values: list[float]) -> str:
     )
 
 
+def _synthetic_jpeg() -> bytes:
+    """A textured 240x180 JPEG of about 6 kB, if the mission stored none."""
+    rng = np.random.default_rng(5)
+    img = cv2.resize((rng.random((45, 60, 3)) * 255).astype(np.uint8), (240, 180))
+    return bytes(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 30])[1])
+
+
 def run(mission_s: float = MISSION_S) -> dict[str, object]:
     off = _mission(False, mission_s)
     on = _mission(True, mission_s)
+    runs: dict[bool, list[Steady]] = {False: [], True: []}
+    for flowing_pictures in (False, True, False, True):  # alternated: the machine is shared
+        jpegs = (on.jpegs or [_synthetic_jpeg()]) if flowing_pictures else []
+        runs[flowing_pictures].append(_steady(jpegs, STEADY_S))
+    quiet, busy = (
+        Steady(
+            [x for r in rs for x in r.report_latency_s],
+            [x for r in rs for x in r.transfers_s],
+            statistics.mean(r.chunks_per_picture for r in rs),
+            rs[0].picture_chunks,
+            sum(r.overflow for r in rs),
+        )
+        for rs in (runs[False], runs[True])
+    )
+    steady = {
+        "steady: reports (every 0.5 s) latency, pictures off, ms": _stats(quiet.report_latency_s),
+        "steady: reports latency, pictures flowing all the time, ms": _stats(busy.report_latency_s),
+        "steady: pictures delivered in the run / transfer time median (max), s": (
+            f"{len(busy.transfers_s)} / {statistics.median(busy.transfers_s):.1f} "
+            f"({max(busy.transfers_s):.1f})"
+            if busy.transfers_s
+            else "0"
+        ),
+        "steady: chunks sent per picture / chunks in it": (
+            f"{busy.chunks_per_picture:.0f} / {busy.picture_chunks}"
+        ),
+        "steady: radio buffer overflows, off / on": f"{quiet.overflow} / {busy.overflow}",
+    }
     flowing = [
         lat
         for t, lat in on.report_latency_s
@@ -210,6 +356,7 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
             f"{off.up_bytes_s:.0f} / {on.up_bytes_s:.0f}"
         ),
         "radio buffer overflows, off / on": f"{off.overflow} / {on.overflow}",
+        **steady,
     }
 
 

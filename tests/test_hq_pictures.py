@@ -40,7 +40,10 @@ def _picture_ack(robot: SimRobot, picture_id: int, timeout_s: float = 3.0) -> ob
 def _get(url: str) -> tuple[int, bytes, str]:
     try:
         with urllib.request.urlopen(url, timeout=10) as resp:
-            return resp.status, resp.read(), resp.headers.get("Content-Type", "")
+            kind = resp.headers.get("Content-Type", "")
+            if resp.headers.get("X-Content-Type-Options") == "nosniff":
+                kind += "; nosniff"
+            return resp.status, resp.read(), kind
     except urllib.error.HTTPError as exc:
         return exc.code, exc.read(), exc.headers.get("Content-Type", "")
 
@@ -89,7 +92,7 @@ def test_a_picture_in_chunks_is_stored_acknowledged_and_served(start_hq, tunnel:
             time.sleep(0.2)
         assert card["picture"] == f"/victims/{card['id']}/picture?v=3-7-50"
         status, body, kind = _get(url + card["picture"].lstrip("/"))
-        assert (status, kind, body) == (200, "image/jpeg", data)
+        assert (status, kind, body) == (200, "image/jpeg; nosniff", data)
         status, body, _ = _get(url + "victims/999/picture")
         assert status == 404 and b"no robot has sent one" in body
         assert _get(url + f"victims/{card['id']}/picture?v=../x")[0] == 400

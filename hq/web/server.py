@@ -325,9 +325,11 @@ class Console:
                 {"error": f"no evidence picture for victim {hq_id}: no robot has sent one yet"},
                 status_code=404,
             )
-        # A version names one picture for good: the browser may keep it.
+        # A version names one picture for good: the browser may keep it. The bytes
+        # come from a robot: never let the browser guess they are anything but a JPEG.
         cache = "private, max-age=86400" if version else "no-cache"
-        return Response(jpeg, media_type="image/jpeg", headers={"Cache-Control": cache})
+        headers = {"Cache-Control": cache, "X-Content-Type-Options": "nosniff"}
+        return Response(jpeg, media_type="image/jpeg", headers=headers)
 
     async def _export_file(self, request: Request) -> Response:
         name = request.path_params["name"]
