@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from hq import export, table, wire
-from hq.pictures import PictureAssembler
+from hq.pictures import PictureIntake
 from hq.ratelog import RateLimitedLog
 from hq.records import (
     ACK_RESULT_ACCEPTED,
@@ -120,10 +120,6 @@ class Counters:
     exports: int = 0
     inbox_dropped: int = 0  # datagrams dropped because the main thread was behind
     sources_forgotten: int = 0  # decoders dropped: silent too long, or too many sources
-    pictures: int = 0  # evidence pictures stored
-    picture_chunks_refused: int = 0  # chunks with an unusable or contradictory field
-    pictures_rejected: int = 0  # complete pictures that failed their CRC or are not a JPEG
-    picture_acks_sent: int = 0
 
 
 class HqApp:
@@ -162,7 +158,7 @@ class HqApp:
         self._last_draw_mono_s = 0.0
         self._db_version = -1
         self._unstored = UnstoredReports(_MAX_UNSTORED)
-        self._pictures = PictureAssembler()
+        self.pictures = PictureIntake(registry, self._refusals, self._event)
         self._store_failing_since: float | None = None
         self._next_store_notice = 0.0
 
@@ -196,7 +192,7 @@ class HqApp:
                     self._refresh_actions()
                     next_db_check = now + _DB_CHECK_PERIOD_S
                 self._sources.forget_silent(now)
-                self._pictures.forget_idle(now)
+                self.pictures.assembler.forget_idle(now)
                 self.counters.sources_forgotten = self._sources.forgotten
                 if self._unstored and now >= next_store_retry:
                     self._store_and_ack([])  # reports held from a failed write
@@ -410,81 +406,14 @@ class HqApp:
         self.counters.acks_sent += 1
 
     def _on_picture_chunk(self, msg: Any, route: Route) -> None:
-        """Collect a picture's chunks; store it when whole, then say STORED. A chunk
-        with ACK_REQUEST gets the bitmap of what arrived (or STORED when the HQ holds
-        this picture or a newer one of that victim)."""
-        robot = msg.get_srcSystem()
-        try:
-            chunk = picture.Chunk.from_msg(msg)
-        except picture.BadChunk as exc:
-            self.counters.picture_chunks_refused += 1
-            self._refusals.say(
-                ("picture", robot),
-                f"refused RESCUE_PICTURE_CHUNK from system {robot}: {exc}",
+        def answer(picture_id: int, result: int, received: frozenset[int]) -> None:
+            ack = picture.ack_msg(
+                self._m, msg.get_srcSystem(), msg.get_srcComponent(), picture_id, result, received
             )
-            return
-        try:
-            stored = self.registry.picture_id(robot, chunk.victim_id)
-        except sqlite3.Error as exc:
-            log.debug("cannot read pictures: %s", exc)
-            return
-        if stored is not None and stored >= chunk.picture_id:
-            if chunk.ack_request:  # the robot missed our STORED
-                self._send_picture_ack(msg, route, chunk.picture_id, picture.RESULT_STORED)
-            return
-        try:
-            r = self._pictures.add(robot, chunk, time.monotonic())
-        except picture.BadChunk as exc:
-            self.counters.picture_chunks_refused += 1
-            self._refusals.say(
-                ("picture", robot), f"refused a picture chunk of robot {robot}: {exc}"
-            )
-            return
-        if not r.complete:
-            if chunk.ack_request:
-                self._send_picture_ack(
-                    msg, route, chunk.picture_id, picture.RESULT_PARTIAL, r.received
-                )
-            return
-        try:
-            jpeg = r.jpeg()
-        except picture.BadChunk as exc:
-            self.counters.pictures_rejected += 1
-            self._pictures.drop(robot, chunk.picture_id)
-            self._refusals.say(("picture", robot), f"rejected a picture of robot {robot}: {exc}")
-            self._send_picture_ack(msg, route, chunk.picture_id, picture.RESULT_REJECTED)
-            return
-        try:
-            fresh = self.registry.store_picture(
-                robot, chunk.victim_id, chunk.picture_id, jpeg, time.time()
-            )
-        except RegistryError as exc:  # not acknowledged: the robot asks again later
-            self.counters.store_failures += 1
-            log.warning("picture %d of robot %d not stored: %s", chunk.picture_id, robot, exc)
-            return
-        self._pictures.drop(robot, chunk.picture_id)
-        self._send_picture_ack(msg, route, chunk.picture_id, picture.RESULT_STORED)
-        if fresh:
-            self.counters.pictures += 1
-            self._dirty = True
-            self._event(
-                f"picture robot {robot} victim {chunk.victim_id} #{chunk.picture_id}: "
-                f"{len(jpeg)} bytes"
-            )
+            self._send(ack, route)
 
-    def _send_picture_ack(
-        self,
-        msg: Any,
-        route: Route,
-        picture_id: int,
-        result: int,
-        received: frozenset[int] = frozenset(range(picture.MAX_CHUNKS)),
-    ) -> None:
-        ack = picture.ack_msg(
-            self._m, msg.get_srcSystem(), msg.get_srcComponent(), picture_id, result, received
-        )
-        self._send(ack, route)
-        self.counters.picture_acks_sent += 1
+        if self.pictures.on_chunk(msg, answer):
+            self._dirty = True
 
     def _on_status(self, msg: Any) -> None:
         try:

@@ -317,9 +317,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 c.actions_acked,
                 c.refused,
                 c.signature_refused,
-                c.pictures,
-                c.picture_chunks_refused,
-                c.pictures_rejected,
+                app.pictures.counters.stored,
+                app.pictures.counters.chunks_refused,
+                app.pictures.counters.rejected,
             )
         finally:
             if sbs is not None:
