@@ -31,6 +31,7 @@ from typing import Any
 
 from fusion.types import Urgency
 from hq.simrobot import SimRobot
+from mavlink_io import picture
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = ("chromium", "chromium-browser")
@@ -201,6 +202,19 @@ class Mission:
         if wait_ack:
             robot.wait_for("RESCUE_ACK", 5.0, seq=msg.report_seq)
         return sent
+
+    def picture(self, sysid: int, victim_id: int, picture_id: int, jpeg: bytes) -> None:
+        """Robot ``sysid`` sends an evidence picture in chunks inside TUNNEL, as the
+        companion does through its autopilot, and waits until the HQ stored it."""
+        robot = self.robots[sysid]
+        chunks = picture.split(picture_id, victim_id, jpeg)
+        with self._lock:
+            for c in chunks[:-1]:
+                robot.send(c.to_msg(robot.codec.module), tunnel=True)
+            robot.send(chunks[-1].asking().to_msg(robot.codec.module), tunnel=True)
+        ack = robot.wait_for("RESCUE_PICTURE_ACK", 5.0, picture_id=picture_id)
+        if ack.msg.result != picture.RESULT_STORED or not ack.tunnelled:
+            raise RuntimeError(f"picture {picture_id} not stored: {ack.msg}")
 
     def ack(self, sysid: int, action: Any) -> None:
         """Robot ``sysid`` acknowledges an operator action, as the companion does."""

@@ -25,6 +25,7 @@ from companion.errors import CompanionError
 from fusion.params import GeolocationParams, TrackerParams
 from mavlink_io.errors import LinkSpecError
 from mavlink_io.linkspec import parse_link
+from mavlink_io.picture import MAX_PICTURE_BYTES
 from mavlink_io.vehicle import MAX_STREAM_RATE_HZ
 
 
@@ -251,6 +252,30 @@ class VideoConfig:
 
 
 @dataclass(frozen=True)
+class PicturesConfig:
+    """Each confirmed victim's evidence picture for rescue-hq (companion/pictures.py)."""
+
+    enabled: bool = True
+    max_bytes: int = 6000  # the JPEG's size at most (quality, then scale, are lowered)
+    width_px: int = 240  # the crop around the victim is scaled to this width
+    rate_bytes_s: float = 1000.0  # picture bytes a second at most on the links (after reports)
+    min_gain: float = 0.25  # a new picture replaces the kept one when its score is 25 % higher
+    min_interval_s: float = 10.0  # and at most this often per victim
+
+    def __post_init__(self) -> None:
+        if not 500 <= self.max_bytes <= MAX_PICTURE_BYTES:
+            raise ValueError(f"max_bytes = {self.max_bytes}: must be 500..{MAX_PICTURE_BYTES}")
+        if not 32 <= self.width_px <= 1280:
+            raise ValueError(f"width_px = {self.width_px}: must be 32..1280")
+        if not (math.isfinite(self.rate_bytes_s) and 100.0 <= self.rate_bytes_s <= 100_000.0):
+            raise ValueError(f"rate_bytes_s = {self.rate_bytes_s}: must be 100..100000")
+        if not (math.isfinite(self.min_gain) and 0.0 <= self.min_gain <= 10.0):
+            raise ValueError(f"min_gain = {self.min_gain}: must be 0..10")
+        if not (math.isfinite(self.min_interval_s) and 0.0 <= self.min_interval_s <= 3600.0):
+            raise ValueError(f"min_interval_s = {self.min_interval_s}: must be 0..3600")
+
+
+@dataclass(frozen=True)
 class Config:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     hq: HqConfig = field(default_factory=HqConfig)
@@ -262,6 +287,7 @@ class Config:
     reporting: ReportingConfig = field(default_factory=ReportingConfig)
     paths: PathsConfig = field(default_factory=PathsConfig)
     video: VideoConfig = field(default_factory=VideoConfig)
+    pictures: PicturesConfig = field(default_factory=PicturesConfig)
 
 
 def _positive(owner: object, name: str) -> None:

@@ -36,6 +36,8 @@ class FrameOutcome:
     pose: PoseSample | None
     detections: list[Detection] = field(default_factory=list)
     observations: list[Observation] = field(default_factory=list)
+    # Each detection that became an observation, with it (for evidence pictures).
+    located: list[tuple[Detection, Observation]] = field(default_factory=list)
     events: list[TrackEvent] = field(default_factory=list)
     decisions: list[Decision] = field(default_factory=list)
     skipped: str = ""  # why the frame was not used, if it was not
@@ -83,9 +85,10 @@ class Pipeline:
             self.camera, pose, self._geo, self.config.detector.body_silhouette_fill
         )
         detections = self.detector.detect(frame.image, geometry, frame.t_mono_s)
-        observations = [
-            o for d in detections if (o := self._observe(d, pose, geometry, frame)) is not None
+        located = [
+            (d, o) for d in detections if (o := self._observe(d, pose, geometry, frame)) is not None
         ]
+        observations = [o for _, o in located]
         vision_ms = (time.perf_counter() - start) * 1000.0
         events = self.tracker.update(
             observations,
@@ -96,7 +99,15 @@ class Pipeline:
         self.counters.detections += len(detections)
         self.counters.observations += len(observations)
         return FrameOutcome(
-            frame.t_unix_s, pose, detections, observations, events, decisions, "", vision_ms
+            frame.t_unix_s,
+            pose,
+            detections,
+            observations,
+            located,
+            events,
+            decisions,
+            "",
+            vision_ms,
         )
 
     def _observe(

@@ -6,8 +6,8 @@ Threads (docs/ARCHITECTURE.md):
 - camera: frames into a one-slot mailbox (a newer frame replaces an unprocessed
   one; the drop is counted);
 - processing: pipeline, operator actions, persistence, systemd watchdog;
-- reporter: outbox sends and resends, announcements (rate-limited), health
-  conditions (HQ link, disk), RESCUE_STATUS.
+- reporter: outbox sends and resends, then evidence pictures at a bounded rate,
+  announcements (rate-limited), health conditions (HQ link, disk), RESCUE_STATUS.
 
 The processing thread commits a frame's consequences (tracker, what was reported,
 the new reports and their outbox entries) in one SQLite transaction; the outbox
@@ -27,7 +27,7 @@ import statistics
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +36,7 @@ from companion.announcements import Announcement, Announcements, Conditions
 from companion.calibration import camera_model
 from companion.config import Config
 from companion.params import Settings
+from companion.pictures import Candidate, PictureChooser, PictureSender
 from companion.pipeline import FrameOutcome, Pipeline
 from companion.reporting import Decision, ReportPolicy
 from companion.sdnotify import Notifier, watchdog_period_s
@@ -48,11 +49,11 @@ from companion.sources import (
     write_frame,
 )
 from companion.state import load_state
-from companion.store import StoreError
+from companion.store import StoredPicture, StoreError
 from companion.video import Label, VideoStreamer, labels_in_view, shot
 from companion.vision import make_detector
 from fusion.types import GlobalOrigin, TrackState
-from mavlink_io import convert, dialect, statustext
+from mavlink_io import convert, dialect, picture, statustext
 from mavlink_io.camera import CameraServer, StreamInfo
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.hqlink import HqLink
@@ -249,6 +250,33 @@ class Service:
         self.camera_codec = Codec(v.system_id or 1, config.video.component_id, self.signing)
         self.vehicle.other_components = frozenset({config.video.component_id})
         self.video, self.camera_server = self._video(config)
+        self.chooser, self.picture_sender = self._pictures(config)
+
+    def _pictures(self, config: Config) -> tuple[PictureChooser, PictureSender]:
+        """The evidence pictures: those kept before a restart are known (not chosen
+        again unless clearly better), and those the HQ does not have are sent."""
+        kept: list[StoredPicture] = []
+        try:
+            kept = self.store.pictures()
+        except StoreError as exc:
+            log.warning("evidence pictures of the last run unusable, starting without: %s", exc)
+        sender = PictureSender(
+            config.pictures,
+            lambda chunk: self._send_dialect(chunk.to_msg(self._m)),
+            self._picture_done,
+            signed=self.signing is not None,
+        )
+        for p in kept:
+            if config.pictures.enabled and not p.delivered:
+                sender.offer(p)
+        return PictureChooser(config.pictures, kept), sender
+
+    def _picture_done(self, victim_id: int, picture_id: int, _result: int) -> None:
+        """Reporter thread: the HQ has the picture (or refused it): never resend it."""
+        try:
+            self.store.picture_delivered(victim_id, picture_id)
+        except StoreError as exc:  # sent again after a restart; the HQ says STORED at once
+            log.warning("delivery of picture %d not saved: %s", picture_id, exc)
 
     def _video(self, config: Config) -> tuple[VideoStreamer | None, CameraServer | None]:
         """The live video for QGC and the camera protocol that advertises it, when on
@@ -267,8 +295,11 @@ class Service:
 
     # -- state -------------------------------------------------------------------------
 
-    def _commit(self, decisions: list[Decision]) -> None:
-        """Persist the tracker, the policy and the new reports in one transaction.
+    def _commit(self, decisions: list[Decision], candidates: Sequence[Candidate] = ()) -> None:
+        """Persist the tracker, the policy, the new reports and the new evidence
+        pictures in one transaction. A picture takes its number from the report
+        sequence (never reused, increasing); one not saved is forgotten (a later
+        frame gives another).
 
         When the database cannot be written (a full disk: recorded frames share it),
         the reports wait in memory (one per victim, the newest, its flags merged) and
@@ -287,6 +318,7 @@ class Service:
         for d in decisions:
             self._queue_people(d, d.victim.to_report(sysid, self._floor_down_m, origin))
         seq = self._report_seq
+        pictures: list[tuple[Candidate, StoredPicture]] = []
         try:
             with self.store.transaction():
                 for d in self._unsaved.values():
@@ -296,6 +328,11 @@ class Service:
                         report, seq, d.flags, now, d.victim.merged_into, self._m
                     )
                     self.outbox.stage(msg)  # in this transaction; scheduled after it
+                for c in candidates:
+                    seq += 1
+                    p = StoredPicture(c.victim_id, seq, c.score, c.taken_unix_s, c.jpeg)
+                    self.store.put_picture(p)
+                    pictures.append((c, p))
                 self.store.set("tracker", self.tracker.snapshot())
                 self.store.set("reported", self.policy.snapshot())
                 self.store.set("report_seq", seq)
@@ -318,6 +355,16 @@ class Service:
         saved = len(self._unsaved)
         self._unsaved.clear()
         self.outbox.publish()  # committed: now the reporter may send them
+        for c, p in pictures:
+            self.chooser.keep(c)
+            self.picture_sender.offer(p)
+            log.info(
+                "picture %d of victim %d: %d bytes, score %.3f",
+                p.picture_id,
+                p.victim_id,
+                len(p.jpeg),
+                p.score,
+            )
         if self._store_failing:
             self._store_failing = False
             log.warning("the state database can be written again; %d kept reports saved", saved)
@@ -372,7 +419,7 @@ class Service:
             except queue.Full:
                 log.warning("ground request queue full; %s dropped", msg.get_type())
             return
-        if msg.get_msgId() == dialect.RESCUE_ACK_ID:
+        if msg.get_msgId() in (dialect.RESCUE_ACK_ID, dialect.RESCUE_PICTURE_ACK_ID):
             try:
                 self.acks.put_nowait(msg)
             except queue.Full:  # the report is resent and acknowledged again
@@ -465,12 +512,14 @@ class Service:
                 outcome = self.pipeline.process(frame, self.vehicle.poses)
                 self._after_frame(outcome)
                 self._offer_video(frame, outcome)
+                candidates = self._choose_pictures(frame, outcome)
                 if (
                     outcome.decisions
+                    or candidates
                     or (outcome.events and time.monotonic() - last_save > 0.5)
                     or (time.monotonic() - last_save > _SAVE_PERIOD_S)
                 ):
-                    self._commit(outcome.decisions)
+                    self._commit(outcome.decisions, candidates)
                     last_save = time.monotonic()
                 if self.faults.processing_delay_s:
                     self.stop.wait(self.faults.processing_delay_s)
@@ -478,6 +527,13 @@ class Service:
             if watchdog_s is not None and now >= next_ping:
                 self.notifier.watchdog()
                 next_ping = now + watchdog_s
+
+    def _choose_pictures(self, frame: Frame, outcome: FrameOutcome) -> list[Candidate]:
+        if not (self.config.pictures.enabled and outcome.located):
+            return []
+        return self.chooser.consider(
+            frame.image, outcome.located, self.tracker.victims(), frame.t_unix_s
+        )
 
     def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
         if self.video is None:
@@ -616,6 +672,8 @@ class Service:
         while not self.stop.is_set():
             self._apply_acks()
             self.outbox.poll()
+            if self.outbox.seconds_until_due() != 0.0:  # reports first, always
+                self.picture_sender.poll()
             now = time.monotonic()
             for a in self.announcements.take(now):
                 for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
@@ -646,6 +704,7 @@ class Service:
             waits = [
                 next_status - now,
                 self.outbox.seconds_until_due(),
+                self.picture_sender.seconds_until_due(),
                 self.announcements.seconds_until_due(now),
             ]
             wait = min(w for w in waits if w is not None)
@@ -678,7 +737,12 @@ class Service:
                 ack = self.acks.get_nowait()
             except queue.Empty:
                 return
-            if self.outbox.on_ack(ack):
+            if ack.get_msgId() == dialect.RESCUE_PICTURE_ACK_ID:
+                try:
+                    self.picture_sender.on_ack(picture.Ack.from_msg(ack))
+                except picture.BadChunk as exc:
+                    log.warning("picture acknowledgement refused: %s", exc)
+            elif self.outbox.on_ack(ack):
                 log.debug("report %d acknowledged", ack.seq)
 
     def _check_health(self, now: float) -> None:
@@ -709,7 +773,8 @@ class Service:
         rejected = ", ".join(f"{k}: {n}" for k, n in counts.most_common(3)) or "none"
         log.info(
             "%d frames (%d without a pose, %d dropped), %d detections, %d observations "
-            "(rejected: %s), %d confirmed victims, %d reports unacknowledged",
+            "(rejected: %s), %d confirmed victims, %d reports unacknowledged, "
+            "%d pictures delivered, %d waiting",
             c.frames,
             c.frames_without_pose,
             self.mailbox.dropped,
@@ -718,6 +783,8 @@ class Service:
             rejected,
             self._counts[0],
             self.outbox.pending_count,
+            self.picture_sender.counters.delivered,
+            self.picture_sender.pending,
         )
 
     def _send_status(self, now: float) -> None:

@@ -5,7 +5,9 @@ What survives a crash or ``kill -9``:
 - what was reported about each victim (so a restart re-announces nothing as new);
 - the next report sequence number;
 - the outbox of dialect messages not yet acknowledged by the HQ
-  (mavlink_io.reliable.OutboxStore).
+  (mavlink_io.reliable.OutboxStore);
+- each victim's evidence picture (the JPEG, its score and number) and whether the
+  HQ has it (companion/pictures.py).
 
 The processing thread writes a frame's consequences in one transaction
 (``with store.transaction(): ...``) *before* anything is sent, so what was sent is
@@ -22,6 +24,7 @@ import logging
 import sqlite3
 import threading
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +41,27 @@ CREATE TABLE IF NOT EXISTS outbox (
     frame BLOB NOT NULL,
     PRIMARY KEY (msgid, seq)
 );
+CREATE TABLE IF NOT EXISTS pictures (
+    victim_id INTEGER PRIMARY KEY,
+    picture_id INTEGER NOT NULL,
+    score REAL NOT NULL,
+    taken_unix_s REAL NOT NULL,
+    jpeg BLOB NOT NULL,
+    delivered INTEGER NOT NULL DEFAULT 0
+);
 """
+
+
+@dataclass(frozen=True)
+class StoredPicture:
+    """A victim's kept evidence picture; ``delivered`` once the HQ said STORED."""
+
+    victim_id: int
+    picture_id: int
+    score: float
+    taken_unix_s: float
+    jpeg: bytes
+    delivered: bool = False
 
 
 class StoreError(CompanionError):
@@ -188,6 +211,35 @@ class Store:
         with self._lock:
             rows = self._read("SELECT msgid, seq, frame FROM outbox ORDER BY seq")
         return [(int(m), int(s), bytes(f)) for m, s, f in rows]
+
+    # -- evidence pictures ---------------------------------------------------------------
+
+    def put_picture(self, p: StoredPicture) -> None:
+        """Keep ``p`` as its victim's picture (replacing an older one), not delivered."""
+        with self.transaction():
+            self._write(
+                "INSERT OR REPLACE INTO pictures (victim_id, picture_id, score, taken_unix_s,"
+                " jpeg, delivered) VALUES (?, ?, ?, ?, ?, 0)",
+                (p.victim_id, p.picture_id, p.score, p.taken_unix_s, p.jpeg),
+            )
+
+    def picture_delivered(self, victim_id: int, picture_id: int) -> None:
+        with self.transaction():
+            self._write(
+                "UPDATE pictures SET delivered = 1 WHERE victim_id = ? AND picture_id = ?",
+                (victim_id, picture_id),
+            )
+
+    def pictures(self) -> list[StoredPicture]:
+        with self._lock:
+            rows = self._read(
+                "SELECT victim_id, picture_id, score, taken_unix_s, jpeg, delivered FROM pictures"
+                " ORDER BY picture_id"
+            )
+        return [
+            StoredPicture(int(v), int(p), float(s), float(t), bytes(j), bool(d))
+            for v, p, s, t, j, d in rows
+        ]
 
     def close(self) -> None:
         with self._lock:

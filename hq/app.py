@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from hq import export, table, wire
+from hq.pictures import PictureIntake
 from hq.ratelog import RateLimitedLog
 from hq.records import (
     ACK_RESULT_ACCEPTED,
@@ -44,10 +45,12 @@ from hq.sources import SourceTable
 from hq.unstored import UnstoredReports
 from hq.view import hq_victims
 from hq.web.state import LiveRobots
+from mavlink_io import picture
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import (
     RESCUE_MESSAGE_IDS,
     RESCUE_OPERATOR_ACTION_ID,
+    RESCUE_PICTURE_CHUNK_ID,
     RESCUE_VICTIM_REPORT_ID,
 )
 from mavlink_io.errors import LinkError
@@ -155,6 +158,7 @@ class HqApp:
         self._last_draw_mono_s = 0.0
         self._db_version = -1
         self._unstored = UnstoredReports(_MAX_UNSTORED)
+        self.pictures = PictureIntake(registry, self._refusals, self._event)
         self._store_failing_since: float | None = None
         self._next_store_notice = 0.0
 
@@ -188,6 +192,7 @@ class HqApp:
                     self._refresh_actions()
                     next_db_check = now + _DB_CHECK_PERIOD_S
                 self._sources.forget_silent(now)
+                self.pictures.assembler.forget_idle(now)
                 self.counters.sources_forgotten = self._sources.forgotten
                 if self._unstored and now >= next_store_retry:
                     self._store_and_ack([])  # reports held from a failed write
@@ -288,6 +293,8 @@ class HqApp:
             self._routes[msg.get_srcSystem()] = route
         if msg_id == RESCUE_VICTIM_REPORT_ID:
             self._on_report(msg, route, reports)
+        elif msg_id == RESCUE_PICTURE_CHUNK_ID:
+            self._on_picture_chunk(msg, route)
         elif msg_id == self._m.MAVLINK_MSG_ID_RESCUE_STATUS:
             self._on_status(msg)
         elif msg_id == self._m.MAVLINK_MSG_ID_RESCUE_ACK:
@@ -397,6 +404,16 @@ class HqApp:
         )
         self._send(ack, route)
         self.counters.acks_sent += 1
+
+    def _on_picture_chunk(self, msg: Any, route: Route) -> None:
+        def answer(picture_id: int, result: int, received: frozenset[int]) -> None:
+            ack = picture.ack_msg(
+                self._m, msg.get_srcSystem(), msg.get_srcComponent(), picture_id, result, received
+            )
+            self._send(ack, route)
+
+        if self.pictures.on_chunk(msg, answer):
+            self._dirty = True
 
     def _on_status(self, msg: Any) -> None:
         try:

@@ -309,7 +309,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             c = app.counters
             log.info(
                 "stopped: %d reports, %d duplicates, %d rejected, %d acks, %d actions acked, "
-                "%d refused (bad values), %d refused (signature)",
+                "%d refused (bad values), %d refused (signature); %d pictures stored, "
+                "%d picture chunks refused, %d pictures rejected",
                 c.reports,
                 c.duplicates,
                 c.rejected,
@@ -317,6 +318,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 c.actions_acked,
                 c.refused,
                 c.signature_refused,
+                app.pictures.counters.stored,
+                app.pictures.counters.chunks_refused,
+                app.pictures.counters.rejected,
             )
         finally:
             if sbs is not None:

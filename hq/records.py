@@ -21,7 +21,8 @@ is defined:
 - local NED positions: within ``MAX_LOCAL_M`` of the EKF origin;
 - covariance: variances from ``MIN_VARIANCE_M2`` to ``MAX_VARIANCE_M2``;
 - latitude/longitude (when given): on the globe and not exactly 0/0 (ArduPilot's
-  "no position yet"); altitude within ``MIN_ALT_M``..``MAX_ALT_M``.
+  "no position yet"); altitude within ``MIN_ALT_M``..``MAX_ALT_M``;
+- an evidence picture: a JPEG (start and end markers) of 1 to ``MAX_PICTURE_BYTES``.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from typing import Any
 
 from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
 from hq.errors import HqError
+from mavlink_io.picture import MAX_PICTURE_BYTES, BadChunk, check_jpeg
 
 MAX_UNIX_S = 4_102_444_800.0  # 2100-01-01T00:00:00Z
 MAX_REPORT_TIME_USEC = int(MAX_UNIX_S) * 1_000_000
@@ -115,6 +117,19 @@ class Robot:
 
 class BadRecord(HqError, ValueError):
     """A value the HQ cannot use; the message names the field."""
+
+
+def check_picture(jpeg: object) -> bytes:
+    """A stored evidence picture: bytes of a JPEG, at most MAX_PICTURE_BYTES."""
+    if not isinstance(jpeg, bytes):
+        raise BadRecord(f"picture is {type(jpeg).__name__}, not bytes")
+    if not 0 < len(jpeg) <= MAX_PICTURE_BYTES:
+        raise BadRecord(f"picture of {len(jpeg)} bytes, not 1..{MAX_PICTURE_BYTES}")
+    try:
+        check_jpeg(jpeg)
+    except BadChunk as exc:
+        raise BadRecord(str(exc)) from None
+    return jpeg
 
 
 def _in(name: str, value: float, low: float, high: float) -> None:

@@ -7,6 +7,7 @@ Tables:
     hq_victims  HQ victim IDs (a group of sources: one person seen by several robots)
     robots      every robot heard (sysid), its last status and its EKF origin
     actions     operator actions (rescued, false alarm), their action_seq and ack time
+    pictures    the newest evidence picture (JPEG) of each (robot, victim_id)
 
 A batch of reports is written in one transaction; the caller acknowledges only
 after ``store_reports`` returned, i.e. after the commit reached the disk: nothing
@@ -45,14 +46,19 @@ from hq.records import (
     Source,
     StoreResult,
     check_origin,
+    check_picture,
     report_from_payload,
     report_payload,
 )
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 2  # 2: actions.ack_result
-_MIGRATIONS = {1: ("ALTER TABLE actions ADD COLUMN ack_result INTEGER",)}  # from version: SQL
+SCHEMA_VERSION = 3  # 2: actions.ack_result; 3: pictures
+# From version: SQL. The pictures table of version 3 is created by _SCHEMA itself.
+_MIGRATIONS: dict[int, tuple[str, ...]] = {
+    1: ("ALTER TABLE actions ADD COLUMN ack_result INTEGER",),
+    2: (),
+}
 # action_seq never counts below the seconds since this instant (see _seed_action_seq).
 _ACTION_SEQ_EPOCH_UNIX_S = 1_735_689_600  # 2025-01-01T00:00:00Z
 _ACTION_SEQ_TICKS_PER_S = 4  # the clock floor counts quarter seconds: uint32 lasts until 2059
@@ -90,6 +96,11 @@ CREATE TABLE IF NOT EXISTS actions (
     robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL, action INTEGER NOT NULL,
     created_unix_s REAL NOT NULL, sent_count INTEGER NOT NULL DEFAULT 0,
     last_sent_unix_s REAL, acked_unix_s REAL, ack_result INTEGER
+);
+CREATE TABLE IF NOT EXISTS pictures (
+    robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL,
+    picture_id INTEGER NOT NULL, received_unix_s REAL NOT NULL, jpeg BLOB NOT NULL,
+    PRIMARY KEY (robot_sysid, victim_id)
 );
 """
 
@@ -484,6 +495,52 @@ class Registry:
                 (now_unix_s, result, action_seq),
             )
         return cur.rowcount == 1
+
+    # -- evidence pictures (one per robot's victim: the newest picture_id) ----------------
+
+    def store_picture(
+        self, robot_sysid: int, victim_id: int, picture_id: int, jpeg: bytes, now_unix_s: float
+    ) -> bool:
+        """Keep a robot's picture of its victim unless one as new (same or higher
+        picture_id) is stored; True when stored. RegistryError as for reports."""
+        with self._write() as db:
+            cur = db.execute(
+                "INSERT INTO pictures (robot_sysid, victim_id, picture_id, received_unix_s, jpeg)"
+                " VALUES (?, ?, ?, ?, ?) ON CONFLICT (robot_sysid, victim_id) DO UPDATE SET"
+                " picture_id=excluded.picture_id, received_unix_s=excluded.received_unix_s,"
+                " jpeg=excluded.jpeg WHERE excluded.picture_id > pictures.picture_id",
+                (robot_sysid, victim_id, picture_id, now_unix_s, jpeg),
+            )
+        return cur.rowcount == 1
+
+    def picture_id(self, robot_sysid: int, victim_id: int) -> int | None:
+        """The stored picture's number for this robot's victim, None without one."""
+        row = self._db.execute(
+            "SELECT picture_id FROM pictures WHERE robot_sysid=? AND victim_id=?",
+            (robot_sysid, victim_id),
+        ).fetchone()
+        return None if row is None else int(row[0])
+
+    def picture_versions(self) -> dict[tuple[int, int], tuple[int, float]]:
+        """(picture_id, received time) of every stored picture by (robot, victim)."""
+        rows = self._db.execute(
+            "SELECT robot_sysid, victim_id, picture_id, received_unix_s FROM pictures"
+        ).fetchall()
+        return {(int(r), int(v)): (int(p), float(t)) for r, v, p, t in rows}
+
+    def picture(self, robot_sysid: int, victim_id: int) -> bytes | None:
+        """The stored JPEG, None without one or when the row is unusable (said once)."""
+        row = self._db.execute(
+            "SELECT jpeg FROM pictures WHERE robot_sysid=? AND victim_id=?",
+            (robot_sysid, victim_id),
+        ).fetchone()
+        if row is None:
+            return None
+        try:
+            return check_picture(row[0])
+        except BadRecord as exc:
+            self._bad_row(f"pictures robot {robot_sysid} victim {victim_id}", exc)
+            return None
 
     def data_version(self) -> int:
         """Changes whenever another connection commits (cheap; see PRAGMA data_version)."""

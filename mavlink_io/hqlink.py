@@ -3,7 +3,7 @@
 ArduPilot drops message IDs it does not know, so the full dialect reports reach the
 HQ either inside TUNNEL through the autopilot or over this link, which carries them
 as they are. A reader thread delivers what the HQ sends us (RESCUE_ACK,
-RESCUE_OPERATOR_ACTION, directly or in TUNNEL) to a callback, and keeps the time it
+RESCUE_PICTURE_ACK, RESCUE_OPERATOR_ACTION, directly or in TUNNEL) to a callback, and keeps the time it
 last heard from the HQ.
 """
 
@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 from mavlink_io import tunnel
 from mavlink_io.codec import Codec, MavMessage
-from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID
+from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID, RESCUE_PICTURE_ACK_ID
 from mavlink_io.errors import LinkError
 from mavlink_io.link import Link
 from mavlink_io.tlog import TlogWriter
@@ -24,7 +24,7 @@ from mavlink_io.tlog import TlogWriter
 log = logging.getLogger(__name__)
 
 _TICK_S = 0.1
-_FOR_US = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
+_FOR_US = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID, RESCUE_PICTURE_ACK_ID})
 
 
 class HqLink:

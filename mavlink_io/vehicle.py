@@ -26,7 +26,7 @@ needless one costs five small commands.
 If no COMMAND_ACK accepts it within ``ack_timeout_s`` (twice), or it is refused, the
 old REQUEST_DATA_STREAM is used instead.
 
-Messages for us: RESCUE_ACK and RESCUE_OPERATOR_ACTION addressed to our
+Messages for us: RESCUE_ACK, RESCUE_PICTURE_ACK and RESCUE_OPERATOR_ACTION addressed to our
 (sysid, component) or broadcast, directly or inside our TUNNEL, and a ground
 station's PARAM_REQUEST_LIST/READ, PARAM_SET and COMMAND_LONG addressed to our
 component or to all, go to ``on_dialect`` (called on the reader thread) or,
@@ -47,7 +47,7 @@ from fusion.pose import PoseHistory
 from fusion.types import GlobalOrigin, PoseSample
 from mavlink_io import tunnel
 from mavlink_io.codec import Codec, MavMessage
-from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID
+from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID, RESCUE_PICTURE_ACK_ID
 from mavlink_io.errors import LinkError, LinkTimeout
 from mavlink_io.link import Link
 from mavlink_io.telemetry import AUTOPILOT_COMPONENT, TelemetryDecoder, is_autopilot_heartbeat
@@ -84,7 +84,7 @@ MAX_STREAM_RATE_HZ = 200.0  # no autopilot streams faster; REQUEST_DATA_STREAM's
 _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
 _HEARTBEAT_GAP_S = 1.5  # autopilots beat at 1 Hz: a longer silence may be a reboot
 _MIN_STALE_S = 1.0  # no telemetry for this long (or 3 periods) while connected: re-request
-_DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID})
+_DIALECT_IDS = frozenset({RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID, RESCUE_PICTURE_ACK_ID})
 # PARAM_REQUEST_READ, PARAM_REQUEST_LIST, PARAM_SET, COMMAND_LONG: a ground station
 # asking the companion's component for its parameters (mavlink_io/params.py) or its
 # camera and video stream (mavlink_io/camera.py) also goes to on_dialect.

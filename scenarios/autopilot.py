@@ -15,7 +15,7 @@ It behaves as ArduPilot Rover does on its MAVLink ports ("links", numbered 0..n-
   broadcast packet to every other link that has heard someone, and a targeted one
   to the links where its target was heard; it forwards the original bytes. Like
   ArduPilot it forwards only messages it can check: our dialect's message IDs
-  (43100-43103) and unparseable packets are dropped, not routed.
+  (43100-43105) and unparseable packets are dropped, not routed.
 
 Its reported pose is the truth plus a slow drift and white noise (scenarios.motion).
 Times are simulation seconds; ``unix_of`` maps them to the wall clock of SYSTEM_TIME.

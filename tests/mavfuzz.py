@@ -23,9 +23,12 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
+from mavlink_io import picture
 from mavlink_io.dialect import (
     RESCUE_ACK_ID,
     RESCUE_OPERATOR_ACTION_ID,
+    RESCUE_PICTURE_ACK_ID,
+    RESCUE_PICTURE_CHUNK_ID,
     RESCUE_STATUS_ID,
     RESCUE_VICTIM_REPORT_ID,
 )
@@ -82,6 +85,12 @@ class FrameFuzzer:
         self._seq = 0
         self._classes = sorted(module.mavlink_map.items())
         self._slots = {msg_id: slots(cls) for msg_id, cls in self._classes}
+        # Small pictures (1 to 4 chunks) whose chunks often all arrive: the HQ then
+        # joins, checks and stores them, also after a mutated chunk went in.
+        self._pictures = [
+            picture.split(pid, pid % 7 + 1, b"\xff\xd8" + self.rng.randbytes(n) + b"\xff\xd9")
+            for pid, n in enumerate((10, 100, 200, 300), start=1)
+        ]
 
     # -- frames -----------------------------------------------------------------
 
@@ -176,6 +185,11 @@ class FrameFuzzer:
                 rng.randint(0, 100),
                 rng.randint(0, 3),
             )
+        if msg_id == RESCUE_PICTURE_CHUNK_ID:
+            chunk = rng.choice(rng.choice(self._pictures))
+            return (chunk.asking() if rng.random() < 0.3 else chunk).to_msg(m)
+        if msg_id == RESCUE_PICTURE_ACK_ID:  # HQ-to-robot: the HQ must ignore it
+            return picture.ack_msg(m, 1, 191, rng.randint(0, 9), rng.randint(0, 3), {0, 1})
         if msg_id == RESCUE_OPERATOR_ACTION_ID:
             return m.MAVLink_rescue_operator_action_message(
                 rng.randint(0, 255), 191, rng.randint(0, 50), rng.randint(0, 100), rng.randint(0, 4)
@@ -189,7 +203,9 @@ class FrameFuzzer:
     def _dialect_payload(self) -> tuple[int, bytes]:
         msg_id = self.rng.choice(
             (RESCUE_VICTIM_REPORT_ID,) * 5
+            + (RESCUE_PICTURE_CHUNK_ID,) * 3
             + (RESCUE_STATUS_ID, RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID, GPS_GLOBAL_ORIGIN_ID)
+            + (RESCUE_PICTURE_ACK_ID,)
         )
         payload = self.payload_of(self._valid(msg_id))
         if self.rng.random() < 0.85:

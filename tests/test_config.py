@@ -80,6 +80,14 @@ def test_relative_paths_are_relative_to_the_config_file(tmp_path: Path) -> None:
         ("[vehicle]\nattitude_rate_hz = 100000\n", "attitude_rate_hz = 100000.0: must be in"),
         ("[vehicle]\nglobal_position_rate_hz = 0\n", "global_position_rate_hz = 0.0: must"),
         ("[reporting]\ndialect_report = true\n", "unknown key 'dialect_report'"),
+        ("[pictures]\nmax_bytes = 100\n", "[pictures] max_bytes = 100: must be 500..22016"),
+        ("[pictures]\nmax_bytes = 30000\n", "max_bytes = 30000: must be 500..22016"),
+        ("[pictures]\nwidth_px = 8\n", "[pictures] width_px = 8: must be 32..1280"),
+        ("[pictures]\nrate_bytes_s = nan\n", "pictures.rate_bytes_s = nan: must be a finite"),
+        ("[pictures]\nrate_bytes_s = 50.0\n", "rate_bytes_s = 50.0: must be 100..100000"),
+        ("[pictures]\nmin_gain = -0.5\n", "min_gain = -0.5: must be 0..10"),
+        ("[pictures]\nmin_interval_s = 4000.0\n", "min_interval_s = 4000.0: must be 0..3600"),
+        ("[pictures]\nenabled = 1\n", "pictures.enabled = 1: expected true or false"),
     ],
 )
 def test_bad_values_name_key_and_value(tmp_path: Path, toml: str, expected: str) -> None:

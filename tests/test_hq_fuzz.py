@@ -22,14 +22,14 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from hqproc import ACCEPTED, DUPLICATE, REPO, HqProcess, ack_for, hq_starter
+from hqproc import ACCEPTED, ACK_TIMEOUT_S, DUPLICATE, REPO, HqProcess, ack_for, hq_starter
 from mavfuzz import GPS_GLOBAL_ORIGIN_ID, FrameFuzzer
 
 from hq import wire
 from hq.simrobot import SimRobot
-from mavlink_io import dialect
+from mavlink_io import dialect, picture
 from mavlink_io.codec import Codec
-from mavlink_io.dialect import RESCUE_STATUS_ID, RESCUE_VICTIM_REPORT_ID
+from mavlink_io.dialect import RESCUE_PICTURE_CHUNK_ID, RESCUE_STATUS_ID, RESCUE_VICTIM_REPORT_ID
 
 SEED = int(os.environ.get("FUZZ_SEED", "16"))
 MESSAGES = int(os.environ.get("FUZZ_MESSAGES", "1500"))
@@ -58,7 +58,9 @@ def _to_hq_values(codec: Codec, msg: object) -> None:
             wire.status_from_msg(msg)
         elif msg_id == GPS_GLOBAL_ORIGIN_ID:
             wire.origin_from_msg(msg)
-    except wire.BadMessage:
+        elif msg_id == RESCUE_PICTURE_CHUNK_ID:
+            picture.Chunk.from_msg(msg)
+    except (wire.BadMessage, picture.BadChunk):
         pass
 
 
@@ -120,6 +122,13 @@ def test_hq_survives_fuzz_and_still_acknowledges(start_hq, tmp_path: Path) -> No
     with SimRobot(200, hq.address) as robot:  # a sysid the fuzzer rarely uses
         good = robot.report_msg(robot.victim(1, 1.0, 1.0))
         assert _acked_while_resending(robot, good) == ACCEPTED, f"seed {SEED}"
+        jpeg = b"\xff\xd8" + bytes(range(256)) * 2 + b"\xff\xd9"
+        chunks = picture.split(77, 1, jpeg)
+        for c in chunks[:-1]:
+            robot.send(c.to_msg(robot.codec.module))
+        robot.send(chunks[-1].asking().to_msg(robot.codec.module))
+        ack = robot.wait_for("RESCUE_PICTURE_ACK", ACK_TIMEOUT_S, picture_id=77).msg
+        assert ack.result == picture.RESULT_STORED, f"seed {SEED}"
     assert hq.stop() == 0, f"seed {SEED}: {hq.stderr[-5:]}"
     assert not any("Traceback" in line for line in hq.stderr), f"seed {SEED}"
     # Whatever was stored must not poison the next start or the tools.

@@ -70,7 +70,7 @@ def test_list_order_open_first_then_urgency_then_waiting_longest() -> None:
         _victim(5, Urgency.MEDIUM, 400.0, TrackState.TENTATIVE),
     ]
     actions = [Action(7, 1, 4, OperatorAction.RESCUED, 60.0, 2, 61.0)]
-    state = snapshot(victims, [], actions, [], {}, frozenset(), 500.0, 5.0)
+    state = snapshot(victims, [], actions, [], {}, {}, 500.0, 5.0)
     assert [v["id"] for v in state["victims"]] == [3, 2, 5, 1, 4]
     rescued = state["victims"][-1]
     assert rescued["resolved"] is True
@@ -106,7 +106,7 @@ def test_link_lost_after_the_timeout() -> None:
 def test_a_robots_status_reaches_the_page_as_json() -> None:
     status = RobotStatus(30.0, 9.5, 1.0, 80.0, 0, 2, 1, 3)
     robots = [Robot(1, 191, 0.0, 100.0, status, 100.0, None)]
-    state = json.loads(json.dumps(snapshot([], robots, [], [], {}, frozenset(), 101.0, 5.0)))
+    state = json.loads(json.dumps(snapshot([], robots, [], [], {}, {}, 101.0, 5.0)))
     assert state["robots"][0]["status"]["fps"] == 9.5
     assert state["robots"][0]["status"]["outbox_pending"] == 3
 
@@ -307,7 +307,7 @@ def test_bad_actions_and_notes_get_clear_answers(hq_open: tuple[HqConsoleProcess
     )
     assert status == 403  # another site's page cannot press the buttons
     status, body, _ = _request(hq.url + f"victims/{hq_id}/picture")
-    assert status == 404 and "send none yet" in json.loads(body)["error"]
+    assert status == 404 and "no robot has sent one" in json.loads(body)["error"]
     status, _, _ = _request(hq.url + f"api/victims/{hq_id}/note", data={"text": "voices heard"})
     assert status == 200
     state = _wait_state(hq, lambda s: s["victims"][0]["notes"], "note")

@@ -50,10 +50,24 @@ def mission_hq(
         mission.report(1, 1, 5.0, -25.0, Urgency.LIGHT, visibility_pct=70.0)
         mission.report(2, 1, 14.0, 3.0, Urgency.CRITICAL, visibility_pct=10.0, sigma_m=1.5)
         mission.report(3, 1, 8.0, 36.0, Urgency.MEDIUM, visibility_pct=40.0)
+        mission.picture(2, 1, 500, _evidence_jpeg())
         yield hq, mission
     finally:
         mission.close()
         assert hq.stop() == 0, hq.stderr
+
+
+def _evidence_jpeg() -> bytes:
+    """A 240x180 JPEG that looks like nothing else: a gradient with a red box."""
+    import cv2
+    import numpy as np
+
+    img = np.zeros((180, 240, 3), np.uint8)
+    img[:, :, 1] = np.linspace(0, 255, 240, dtype=np.uint8)
+    cv2.rectangle(img, (60, 45), (180, 135), (40, 40, 230), 2)
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 70])
+    assert ok
+    return bytes(buf)
 
 
 def _cards(driver: Any) -> list[dict[str, str]]:
@@ -77,7 +91,19 @@ def test_victims_appear_on_the_map_and_in_the_list(
     cards = _cards(browser)
     assert [c["urgency"] for c in cards] == ["CRITICAL", "MEDIUM", "LIGHT"]
     assert "robot 2" in cards[0]["text"] and "10 % visible" in cards[0]["text"]
-    assert "no picture" in cards[0]["text"]  # said plainly: the robots send none yet
+    # Robot 2 sent its picture of the CRITICAL victim: the card shows it, decoded by
+    # the browser at its size; the others say plainly that there is none.
+    size = wait_js(
+        browser,
+        f"const img = document.querySelector('#victim-{cards[0]['id']} .picture img');"
+        "return img && img.complete && img.naturalWidth ? [img.naturalWidth, img.naturalHeight] "
+        ": null",
+        10,
+        "the evidence picture",
+    )
+    assert size == [240, 180]
+    assert "no picture" not in cards[0]["text"]
+    assert all("no picture" in c["text"] for c in cards[1:])
     colours = browser.execute_script(
         "return [...document.querySelectorAll('[data-victim]')].map(e => "
         "[e.dataset.urgency, e.getAttribute('fill')])"

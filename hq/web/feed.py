@@ -24,10 +24,10 @@ import time
 from collections.abc import Callable
 from contextlib import suppress
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 from hq.registry import Registry, RegistryError
-from hq.view import hq_victims
+from hq.view import HqVictim, hq_victims
 from hq.web.notes import Notes
 from hq.web.state import LiveRobots, robots_lost, snapshot
 
@@ -41,20 +41,40 @@ Job = Callable[[Registry, Notes], T]
 _Queued = tuple[Callable[[Registry, Notes], Any], "concurrent.futures.Future[Any]"]
 
 
-class Pictures(Protocol):
-    """Evidence pictures by HQ victim ID (JPEG bytes). The robots do not send any yet."""
+def picture_versions(registry: Registry, victims: list[HqVictim]) -> dict[int, str]:
+    """The version of each HQ victim's evidence picture (the newest received among
+    its robots' pictures): ``robot-victim-picture_id``, so a better picture is a new
+    address and the browser fetches it."""
+    stored = registry.picture_versions()
+    out: dict[int, str] = {}
+    for v in victims:
+        held = [(stored[s][1], s, stored[s][0]) for s in v.sources if s in stored]
+        if held:
+            _, (robot, victim_id), picture_id = max(held)
+            out[v.hq_id] = f"{robot}-{victim_id}-{picture_id}"
+    return out
 
-    def ids(self) -> frozenset[int]: ...
 
-    def jpeg(self, hq_id: int) -> bytes | None: ...
+def picture_job(hq_id: int, version: str | None) -> Job[bytes | None]:
+    """The JPEG of an HQ victim's picture: the version asked for when given (and
+    still one of its robots'), else the newest; None when there is none."""
 
+    def job(registry: Registry, _notes: Notes) -> bytes | None:
+        victim = next((v for v in hq_victims(registry) if v.hq_id == hq_id), None)
+        if victim is None:
+            return None
+        versions = picture_versions(registry, [victim])
+        key = versions.get(hq_id)
+        if key is None:
+            return None
+        if version is not None:
+            robot, victim_id, _ = (int(x) for x in version.split("-"))
+            if (robot, victim_id) in victim.sources:
+                return registry.picture(robot, victim_id)
+        robot, victim_id, _ = (int(x) for x in key.split("-"))
+        return registry.picture(robot, victim_id)
 
-class NoPictures:
-    def ids(self) -> frozenset[int]:
-        return frozenset()
-
-    def jpeg(self, hq_id: int) -> bytes | None:
-        return None
+    return job
 
 
 class Hub:
@@ -90,14 +110,12 @@ class ConsoleDatabase(threading.Thread):
         self,
         db_path: Path,
         live: LiveRobots,
-        pictures: Pictures,
         link_timeout_s: float,
         publish: Callable[[str], None],
     ) -> None:
         super().__init__(name="hq-web-db", daemon=True)
         self.db_path = db_path
         self.live = live
-        self.pictures = pictures
         self.link_timeout_s = link_timeout_s
         self._publish = publish
         self._jobs: queue.Queue[_Queued] = queue.Queue()
@@ -173,13 +191,14 @@ class ConsoleDatabase(threading.Thread):
                 next_tick = time.monotonic() + 1.0
 
     def state_json(self, registry: Registry, notes: Notes) -> str:
+        victims = hq_victims(registry)
         state = snapshot(
-            hq_victims(registry),
+            victims,
             registry.robots(),
             registry.actions(),
             notes.all(),
             self.live.tracks(),
-            self.pictures.ids(),
+            picture_versions(registry, victims),
             time.time(),
             self.link_timeout_s,
         )

@@ -21,6 +21,7 @@ import asyncio
 import html
 import json
 import logging
+import re
 import socket
 import sqlite3
 import threading
@@ -51,7 +52,7 @@ from hq.registry import Registry, RegistryError
 from hq.view import HqVictim, hq_victims
 from hq.web import access, assets
 from hq.web.downloads import EXPORTS, export_job
-from hq.web.feed import ConsoleDatabase, Hub, Job, NoPictures, Pictures, T
+from hq.web.feed import ConsoleDatabase, Hub, Job, T, picture_job
 from hq.web.notes import BadNote, Notes
 from hq.web.state import LiveRobots
 
@@ -59,6 +60,7 @@ log = logging.getLogger(__name__)
 
 _KEEPALIVE_S = 15.0  # an SSE comment line keeps proxies and the browser's timer happy
 _MAX_BODY_BYTES = 4096
+_PICTURE_VERSION = re.compile(r"\d{1,3}-\d{1,10}-\d{1,10}")  # robot-victim-picture_id
 _ACTIONS = {
     "confirmed": OperatorAction.CONFIRMED,
     "rescued": OperatorAction.RESCUED,
@@ -114,20 +116,16 @@ class Console:
         db_path: Path,
         options: ConsoleOptions,
         live: LiveRobots,
-        pictures: Pictures | None = None,
     ) -> None:
         access.check_binding(options.host, options.token)
         self.options = options
         self.live = live
-        self.pictures = pictures or NoPictures()
         self.asset_dir = options.asset_dir or assets.default_asset_dir()
         self.asset_problems = assets.verify(self.asset_dir)
         self._hub: Hub | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._ready = threading.Event()
-        self._db = ConsoleDatabase(
-            db_path, live, self.pictures, options.link_timeout_s, self._publish
-        )
+        self._db = ConsoleDatabase(db_path, live, options.link_timeout_s, self._publish)
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
         self._sock: socket.socket | None = None
@@ -316,13 +314,23 @@ class Console:
 
     async def _picture(self, request: Request) -> Response:
         hq_id = int(request.path_params["hq_id"])
-        jpeg = self.pictures.jpeg(hq_id)
+        version = request.query_params.get("v")
+        if version is not None and not _PICTURE_VERSION.fullmatch(version):
+            return JSONResponse({"error": f"bad picture version {version[:40]!r}"}, 400)
+        try:
+            jpeg = await self._run(picture_job(hq_id, version))
+        except RegistryError as exc:
+            return JSONResponse({"error": f"cannot read the registry: {exc}"}, 503)
         if jpeg is None:
             return JSONResponse(
-                {"error": f"no evidence picture for victim {hq_id}: the robots send none yet"},
+                {"error": f"no evidence picture for victim {hq_id}: no robot has sent one yet"},
                 status_code=404,
             )
-        return Response(jpeg, media_type="image/jpeg", headers={"Cache-Control": "no-cache"})
+        # A version names one picture for good: the browser may keep it. The bytes
+        # come from a robot: never let the browser guess they are anything but a JPEG.
+        cache = "private, max-age=86400" if version else "no-cache"
+        headers = {"Cache-Control": cache, "X-Content-Type-Options": "nosniff"}
+        return Response(jpeg, media_type="image/jpeg", headers=headers)
 
     async def _export_file(self, request: Request) -> Response:
         name = request.path_params["name"]

@@ -129,7 +129,7 @@ def _sort_key(v: HqVictim) -> tuple[bool, int, float, int]:
 
 
 def _victim(
-    v: HqVictim, actions: list[Action], notes: list[Note], has_picture: bool
+    v: HqVictim, actions: list[Action], notes: list[Note], picture: str | None
 ) -> dict[str, Any]:
     return {
         "id": v.hq_id,
@@ -161,7 +161,7 @@ def _victim(
             for a in actions
         ],
         "notes": [{"text": n.text, "created_unix_s": n.created_unix_s} for n in notes],
-        "picture": f"/victims/{v.hq_id}/picture" if has_picture else None,
+        "picture": f"/victims/{v.hq_id}/picture?v={picture}" if picture else None,
     }
 
 
@@ -204,7 +204,7 @@ def snapshot(
     actions: list[Action],
     notes: list[Note],
     tracks: dict[int, RobotTrack],
-    pictures: frozenset[int],
+    pictures: dict[int, str],
     now_unix_s: float,
     link_timeout_s: float,
 ) -> dict[str, Any]:
@@ -228,7 +228,7 @@ def snapshot(
                     key=lambda a: a.action_seq,
                 ),
                 by_victim.get(v.hq_id, []),
-                v.hq_id in pictures,
+                pictures.get(v.hq_id),
             )
             for v in sorted(victims, key=_sort_key)
         ],

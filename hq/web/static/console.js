@@ -319,11 +319,12 @@ function fillCard(card, v) {
   const pic = card.querySelector(".picture");
   if (v.picture) {
     if (pic.dataset.src !== v.picture) {
-      pic.replaceChildren(el("img", { src: `${v.picture}?t=${v.last_seen_unix_s}`, alt: `evidence picture of victim ${v.id}` }));
+      pic.replaceChildren(el("a", { href: v.picture, target: "_blank", title: "the robot's evidence picture: open it full size" },
+        el("img", { src: v.picture, alt: `evidence picture of victim ${v.id}` })));
       pic.dataset.src = v.picture;
     }
   } else if (pic.dataset.src !== "none") {
-    pic.replaceChildren(el("span", { title: "The robots do not send evidence pictures yet; the list and the map are all the HQ has." }, "no picture", el("br"), "from robot"));
+    pic.replaceChildren(el("span", { title: "No robot has sent an evidence picture of this victim yet (a robot sends one once it has a clear view; over a radio it takes several seconds)." }, "no picture", el("br"), "from robot"));
     pic.dataset.src = "none";
   }
   card.querySelector(".title").replaceChildren(

@@ -1,0 +1,347 @@
+"""Evidence pictures: each confirmed victim's best view, chosen and sent to rescue-hq.
+
+``PictureChooser`` (processing thread) looks at every frame's located detections:
+the one that belongs to a confirmed victim (the nearest inside the chi-square 99 %
+gate of the victim's and the observation's covariances) is scored
+
+    score = detection score x visible share (at least 1 %) x s / (s + SHARPNESS_HALF)
+
+with s the variance of the Laplacian of the crop (sharp, well-lit views score
+high; motion blur and darkness low). A view becomes the victim's picture when the
+victim has none, or when it scores ``min_gain`` more than the kept one and
+``min_interval_s`` has passed: then (only then: the score is cheap, encoding is not)
+it is cropped around the victim's box with half the box of context on each side,
+boxes drawn, scaled to ``width_px`` and encoded as a JPEG of at most ``max_bytes``
+(lower quality first, then a smaller scale). The service commits it with the
+frame's state and calls ``keep`` after the commit.
+
+``PictureSender`` (reporter thread) sends the kept pictures that the HQ does not
+have, one at a time, oldest first (a newer picture of the victim being sent
+replaces it), as mavlink_io.picture transfers. A token bucket bounds the bytes a
+second (``rate_bytes_s``, the frames as they leave on the radio: a chunk in TUNNEL
+is 132 bytes, 158 signed); the reporter only calls ``poll`` after the reports due
+went, so pictures use what is left. The processing thread hands pictures over with
+``offer`` (the one lock); acknowledgements come from the link threads through the
+reporter's queue to ``on_ack``; ``on_done`` (reporter thread) records delivery.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from companion.config import PicturesConfig
+from companion.store import StoredPicture
+from fusion.registry import Victim
+from fusion.types import Detection, Observation, TrackState, Urgency
+from mavlink_io import picture
+
+log = logging.getLogger(__name__)
+
+SHARPNESS_HALF = 100.0  # Laplacian variance at which the sharpness term is 0.5
+GATE_D2 = 9.21  # chi-square, 2 degrees of freedom, 99 %: the observation is the victim's
+_CONTEXT = 0.5  # context around the box, in box sizes on each side
+_MIN_CONTEXT_PX = 24
+_QUALITIES = (80, 65, 50, 38, 28, 20)  # JPEG quality tried in turn
+_SHRINK = 0.8  # then the scale, by this factor at a time
+_MIN_WIDTH_PX = 32
+_BGR = {
+    Urgency.CRITICAL: (40, 40, 230),
+    Urgency.MEDIUM: (0, 165, 255),
+    Urgency.LIGHT: (60, 200, 60),
+}
+_OTHER_BGR = (255, 255, 0)
+# A chunk's bytes on the radio inside TUNNEL: the envelope's MAVLink 2 header and CRC
+# (12), TUNNEL's own fields (5), the inner frame's header and CRC (12), the chunk's
+# fields before the data (17); each frame signed adds 13.
+_TUNNEL_OVERHEAD = 12 + 5 + 12 + 17
+_SIGNATURE = 13
+
+
+def chunk_wire_bytes(data_bytes: int, signed: bool) -> int:
+    """The bytes one chunk takes on the radio, in a TUNNEL."""
+    return _TUNNEL_OVERHEAD + data_bytes + (2 * _SIGNATURE if signed else 0)
+
+
+def sharpness(gray: np.ndarray) -> float:
+    """Variance of the Laplacian (focus measure): blur and darkness make it small."""
+    return float(cv2.Laplacian(gray, cv2.CV_64F).var())
+
+
+def view_score(detection_score: float, visibility_pct: float, sharp: float) -> float:
+    visible = max(visibility_pct, 1.0) / 100.0
+    return detection_score * visible * sharp / (sharp + SHARPNESS_HALF)
+
+
+def crop_box(
+    bbox_xywh: tuple[int, int, int, int], width_px: int, height_px: int
+) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) of the box with context, inside the image."""
+    x, y, w, h = bbox_xywh
+    mx = max(_MIN_CONTEXT_PX, round(_CONTEXT * w))
+    my = max(_MIN_CONTEXT_PX, round(_CONTEXT * h))
+    x0, y0 = max(0, x - mx), max(0, y - my)
+    x1, y1 = min(width_px, x + w + mx), min(height_px, y + h + my)
+    return x0, y0, max(x0 + 1, x1), max(y0 + 1, y1)
+
+
+def render(
+    image: np.ndarray,
+    target: Detection,
+    others: Sequence[Detection],
+    victim: Victim,
+    width_px: int,
+    max_bytes: int,
+) -> bytes:
+    """The JPEG of the victim's view: cropped, boxes drawn, at most ``max_bytes``.
+    ValueError when even the smallest scale at the lowest quality is too big."""
+    bgr = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    h, w = bgr.shape[:2]
+    x0, y0, x1, y1 = crop_box(target.bbox_xywh_px, w, h)
+    crop = bgr[y0:y1, x0:x1].copy()
+    for det in others:
+        bx, by, bw, bh = det.bbox_xywh_px
+        cv2.rectangle(crop, (bx - x0, by - y0), (bx + bw - x0, by + bh - y0), _OTHER_BGR, 1)
+    bx, by, bw, bh = target.bbox_xywh_px
+    colour = _BGR[victim.urgency]
+    cv2.rectangle(crop, (bx - x0, by - y0), (bx + bw - x0, by + bh - y0), colour, 2)
+    scale = min(1.0, width_px / crop.shape[1]) if crop.shape[1] > width_px else 1.0
+    while True:
+        size = (max(1, round(crop.shape[1] * scale)), max(1, round(crop.shape[0] * scale)))
+        small = cv2.resize(crop, size, interpolation=cv2.INTER_AREA) if scale != 1.0 else crop
+        label = f"V{victim.victim_id} {victim.urgency.name}"
+        cv2.putText(small, label, (3, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3)
+        cv2.putText(small, label, (3, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
+        for quality in _QUALITIES:
+            ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])
+            if ok and len(buf) <= max_bytes:
+                return bytes(buf)
+        if size[0] <= _MIN_WIDTH_PX:
+            raise ValueError(f"no JPEG of victim {victim.victim_id} fits {max_bytes} bytes")
+        scale *= _SHRINK
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A new picture for a victim, to be committed (its picture_id is given then)."""
+
+    victim_id: int
+    score: float
+    taken_unix_s: float
+    jpeg: bytes
+
+
+def _d2(victim: Victim, obs: Observation) -> float:
+    """Squared Mahalanobis distance of the observation from the victim."""
+    (a, b), (_, d) = victim.cov_ne_m2
+    (oa, ob), (_, od) = obs.cov_ne_m2
+    s = np.array([[a + oa, b + ob], [b + ob, d + od]])  # S = P_victim + R_obs
+    r = np.array([obs.north_m - victim.north_m, obs.east_m - victim.east_m])
+    return float(r @ np.linalg.solve(s, r))  # rᵀ S⁻¹ r
+
+
+def match(
+    victims: Sequence[Victim], located: Sequence[tuple[Detection, Observation]]
+) -> list[tuple[Victim, Detection, Observation]]:
+    """Each confirmed victim with the located detection that is its view (nearest in
+    the gate; one detection per victim and one victim per detection)."""
+    pairs = sorted(
+        (d2, i, j)
+        for i, v in enumerate(victims)
+        if v.state == TrackState.CONFIRMED
+        for j, (_, obs) in enumerate(located)
+        if (d2 := _d2(v, obs)) < GATE_D2
+    )
+    used_v: set[int] = set()
+    used_d: set[int] = set()
+    out = []
+    for _, i, j in pairs:
+        if i in used_v or j in used_d:
+            continue
+        used_v.add(i)
+        used_d.add(j)
+        out.append((victims[i], located[j][0], located[j][1]))
+    return out
+
+
+class PictureChooser:
+    """Keeps each victim's best view. Owned by the processing thread."""
+
+    def __init__(self, cfg: PicturesConfig, kept: Sequence[StoredPicture] = ()) -> None:
+        self.cfg = cfg
+        self._kept = {p.victim_id: (p.score, p.taken_unix_s) for p in kept}
+        self.rendered = 0
+        self.too_big = 0
+
+    def consider(
+        self,
+        image: np.ndarray,
+        located: Sequence[tuple[Detection, Observation]],
+        victims: Sequence[Victim],
+        now_unix_s: float,
+    ) -> list[Candidate]:
+        """New pictures this frame gives (not yet kept: call ``keep`` after the commit)."""
+        out = []
+        detections = [d for d, _ in located]
+        for victim, det, obs in match(victims, located):
+            kept = self._kept.get(victim.victim_id)
+            if kept is not None and now_unix_s - kept[1] < self.cfg.min_interval_s:
+                continue
+            x0, y0, x1, y1 = crop_box(det.bbox_xywh_px, image.shape[1], image.shape[0])
+            region = image[y0:y1, x0:x1]
+            gray = region if region.ndim == 2 else cv2.cvtColor(region, cv2.COLOR_BGR2GRAY)
+            score = view_score(det.score, obs.visibility_pct, sharpness(gray))
+            if not math.isfinite(score) or score <= 0.0:
+                continue
+            if kept is not None and score <= kept[0] * (1.0 + self.cfg.min_gain):
+                continue
+            others = [d for d in detections if d is not det]
+            try:
+                jpeg = render(image, det, others, victim, self.cfg.width_px, self.cfg.max_bytes)
+            except ValueError as exc:
+                self.too_big += 1
+                log.debug("%s", exc)
+                continue
+            self.rendered += 1
+            out.append(Candidate(victim.victim_id, score, now_unix_s, jpeg))
+        return out
+
+    def keep(self, c: Candidate) -> None:
+        self._kept[c.victim_id] = (c.score, c.taken_unix_s)
+
+
+@dataclass
+class SenderCounters:
+    offered: int = 0
+    delivered: int = 0  # the HQ said STORED
+    rejected: int = 0  # the HQ said REJECTED
+    replaced: int = 0  # a newer picture of the victim came while sending
+    chunks: int = 0
+    bytes: int = 0  # on the radio, as chunk_wire_bytes counts them
+
+
+class PictureSender:
+    """Sends kept pictures at a bounded rate until the HQ has them. ``poll``,
+    ``on_ack`` and ``seconds_until_due`` on the reporter thread; ``offer`` anywhere."""
+
+    def __init__(
+        self,
+        cfg: PicturesConfig,
+        send: Callable[[picture.Chunk], None],
+        on_done: Callable[[int, int, int], None],
+        *,
+        signed: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.rate_bytes_s = cfg.rate_bytes_s
+        self._send = send
+        self._on_done = on_done
+        self._signed = signed
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._waiting: dict[int, StoredPicture] = {}  # by victim
+        self._current: picture.Transfer | None = None
+        self._started_s = 0.0  # when the current transfer began
+        # Never two chunks at once (the bucket holds less than two): a report waits
+        # behind at most one chunk in a radio's buffer (23 ms at 57,600 baud); what a
+        # late poll earned beyond one chunk is kept, so the rate is still met.
+        self._capacity = 2.0 * chunk_wire_bytes(picture.CHUNK_BYTES, signed) - 1.0
+        self._tokens = self._capacity
+        self._last_s = clock()
+        self.counters = SenderCounters()
+
+    @property
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._waiting) + (1 if self._current is not None else 0)
+
+    def offer(self, p: StoredPicture) -> None:
+        """Send ``p`` (replacing a waiting or unfinished older picture of its victim)."""
+        with self._lock:
+            held = self._waiting.get(p.victim_id)
+            if held is None or held.picture_id < p.picture_id:
+                self._waiting[p.victim_id] = p
+                self.counters.offered += 1
+
+    def on_ack(self, ack: picture.Ack) -> None:
+        t = self._current
+        if t is None or ack.picture_id != t.picture_id:
+            return
+        t.on_ack(ack)
+        if t.done:
+            self._finish(t)
+
+    def _finish(self, t: picture.Transfer) -> None:
+        self._current = None
+        if t.result == picture.RESULT_STORED:
+            self.counters.delivered += 1
+            log.info(
+                "picture %d of victim %d delivered in %.1f s (%d bytes, %d chunks sent for %d)",
+                t.picture_id,
+                t.victim_id,
+                self._clock() - self._started_s,
+                t.size,
+                t.chunks_sent,
+                len(t.chunks),
+            )
+        else:
+            self.counters.rejected += 1
+            log.warning("picture %d of victim %d REJECTED by the HQ", t.picture_id, t.victim_id)
+        self._on_done(t.victim_id, t.picture_id, t.result or 0)
+
+    def _next_transfer(self) -> picture.Transfer | None:
+        with self._lock:
+            cur = self._current
+            if cur is not None:
+                newer = self._waiting.get(cur.victim_id)
+                if newer is None or newer.picture_id <= cur.picture_id:
+                    return cur
+                self.counters.replaced += 1
+            elif not self._waiting:
+                return None
+            else:
+                newer = min(self._waiting.values(), key=lambda p: p.picture_id)
+            del self._waiting[newer.victim_id]
+        self._current = picture.Transfer(newer.picture_id, newer.victim_id, newer.jpeg)
+        self._started_s = self._clock()
+        return self._current
+
+    def _refill(self, now: float) -> None:
+        self._tokens = min(self._capacity, self._tokens + (now - self._last_s) * self.rate_bytes_s)
+        self._last_s = now
+
+    def poll(self) -> None:
+        """Send the chunks the rate allows now."""
+        now = self._clock()
+        self._refill(now)
+        while (t := self._next_transfer()) is not None:
+            cost = chunk_wire_bytes(picture.CHUNK_BYTES, self._signed)
+            if self._tokens < cost:
+                return
+            chunk = t.next_chunk(now)
+            if chunk is None:
+                return
+            self._tokens -= chunk_wire_bytes(len(chunk.data), self._signed)
+            self.counters.chunks += 1
+            self.counters.bytes += chunk_wire_bytes(len(chunk.data), self._signed)
+            self._send(chunk)
+
+    def seconds_until_due(self) -> float | None:
+        """When ``poll`` may send next (None: nothing to send)."""
+        t = self._next_transfer()
+        if t is None:
+            return None
+        now = self._clock()
+        due = t.seconds_until_due(now)
+        if due is None:
+            return None
+        self._refill(now)
+        lack = chunk_wire_bytes(picture.CHUNK_BYTES, self._signed) - self._tokens
+        return max(due, lack / self.rate_bytes_s if lack > 0 else 0.0)
