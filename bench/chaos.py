@@ -1,9 +1,10 @@
 """Chaos: a simulated mission under radio loss, kills, restarts, a reboot and a full disk
 
 ``scenarios.chaos.run_chaos``: the real ``rescue-companion run`` and ``rescue-hq``
-(restarted as systemd would, 2 s after a failure) on the simulated rover, which
-patrols past the three people of the ``mixed`` preset (debris cleared) with its
-camera at 5 frames/s. The HQ hears the rover only through a relay that loses 30 %
+(restarted as systemd would, 2 s after a failure) on the simulated rover, with its
+camera at 5 frames/s. The three people of the ``mixed`` preset lie 8 m apart (debris
+cleared, all fully visible); the rover patrols across one after the other, a third
+of the mission each, so they are found one at a time while the faults come. The HQ hears the rover only through a relay that loses 30 %
 of the datagrams each way (seeded). A seeded schedule kills the companion with
 SIGKILL once per 150 s at random moments, stops the HQ once with SIGTERM and once
 with SIGKILL, reboots the autopilot once, and fills the companion's state disk (a
@@ -14,8 +15,9 @@ Checks (all must pass; "checks" says which failed): every true victim the compan
 confirmed is at the HQ with exactly one HQ ID; no victim in the companion's store is
 missing at the HQ; every report the HQ acknowledged on the radio is in its registry;
 no unasked exit (so no restart loop), clean exits at the end, no traceback in any
-log. "Longest wait": from the report time of a victim's first report (its
-confirmation) to the HQ's first receipt of it. ``make chaos`` runs it alone
+log. "Longest wait" of a victim: from the report time of its first report (its
+confirmation) to the HQ's first receipt of any report of it; of a report: from its
+making to its storing at the HQ (resends after kills, restarts and losses included). ``make chaos`` runs it alone
 (CHAOS_SECONDS, default 1200, and CHAOS_SEED, default 16) and fails when a check
 fails; the logs and databases of the last run stay in ``.chaos/``.
 """

@@ -4,8 +4,9 @@
     result.failures   # [] when every check passed
     result.figures()  # what BENCHMARKS.md shows
 
-The simulated rover patrols past each victim of ``chaos_world()`` (the ``mixed``
-preset's three people, fully visible) while the real ``rescue-companion run`` and
+The simulated rover patrols across each person of ``chaos_world()`` in turn
+(``patrol_route``: the ``mixed`` preset's three people, fully visible, 8 m apart)
+while the real ``rescue-companion run`` and
 ``rescue-hq`` run as children (scenarios.supervise: restarted as systemd would).
 The HQ hears the rover's ground port only through a LossyRelay (30 % of datagrams
 lost each way). A seeded schedule (``plan_faults``) kills the companion with
@@ -67,30 +68,51 @@ ACK_ACCEPTED, ACK_DUPLICATE = 0, 1
 _LEAD_M = 2.5  # a pass starts this far short of its victim and ends as far beyond
 
 
+_SPACING_M = 8.0  # between the people, east: out of the camera's view during another's patrol
+_PLACES_NE_M = ((3.0, 3.0), (5.0, 3.0 + _SPACING_M), (3.5, 3.0 + 2 * _SPACING_M))
+
+
 def chaos_world() -> World:
-    """The ``mixed`` preset's three people with the debris and dark zone cleared (all
-    fully visible, so the detector finds each on a pass) and a route that passes
-    over each of them, northwards, then returns to the first."""
+    """The ``mixed`` preset's three people, fully visible (debris and dark zone
+    cleared, so the detector finds each on a pass), 8 m apart along the east of an
+    8 m x 22 m floor. The route is set per mission by ``patrol_route``."""
     base = preset("mixed")
-    world = dataclasses.replace(base, name="chaos", debris=(), light_zones=())
-    n_max = world.size_m[0] - 0.3
-    cycle: list[PointNE] = []
-    for v in world.victims:
-        cycle += [
-            (max(0.3, v.north_m - _LEAD_M), v.east_m),
-            (min(n_max, v.north_m + _LEAD_M), v.east_m),
-        ]
+    victims = tuple(
+        dataclasses.replace(v, north_m=n, east_m=e)
+        for v, (n, e) in zip(base.victims, _PLACES_NE_M, strict=True)
+    )
+    first = victims[0]
     return dataclasses.replace(
-        world, start_ne_m=cycle[0], start_heading_rad=0.0, route_ne_m=tuple(cycle)
+        base,
+        name="chaos",
+        size_m=(8.0, 3.0 + 2 * _SPACING_M + 3.0),
+        debris=(),
+        light_zones=(),
+        victims=victims,
+        start_ne_m=(max(0.3, first.north_m - _LEAD_M), first.east_m),
+        start_heading_rad=0.0,
+        route_ne_m=(),
     )
 
 
-def _route_for(world: World, mission_s: float) -> tuple[PointNE, ...]:
-    """The world's cycle repeated long enough for the mission (the rover never stops)."""
-    cycle = list(world.route_ne_m)
-    length = sum(math.dist(a, b) for a, b in zip(cycle, cycle[1:] + cycle[:1], strict=True))
-    repeats = math.ceil(mission_s * SPEED_M_S / length) + 2
-    return tuple(cycle * repeats)
+def patrol_route(world: World, mission_s: float) -> tuple[PointNE, ...]:
+    """Back and forth (north-south) across one person after the other, a third of
+    the mission each, so the people are found one at a time while the faults come:
+    from one patrol the next person is 8 m to the side, out of view. The last
+    patrol goes on past the mission's end (the rover never stops)."""
+    n_max = world.size_m[0] - 0.3
+    route: list[PointNE] = []
+    budget_m = mission_s / len(world.victims) * SPEED_M_S
+    for i, v in enumerate(world.victims):
+        near = (max(0.3, v.north_m - _LEAD_M), v.east_m)
+        far = (min(n_max, v.north_m + _LEAD_M), v.east_m)
+        driven = math.dist(route[-1], near) if route else 0.0
+        route.append(near)
+        last = i == len(world.victims) - 1
+        while driven < budget_m * (3 if last else 1):
+            route += [far, near]
+            driven += 2 * math.dist(near, far)
+    return tuple(route)
 
 
 @dataclass(frozen=True)
@@ -127,6 +149,7 @@ def plan_faults(mission_s: float, seed: int) -> list[Fault]:
 class ChaosResult:
     seed: int
     mission_s: float
+    started_unix_s: float = 0.0
     total_s: float = 0.0
     drain_s: float | None = None  # None: the drain did not finish in time
     faults_done: dict[str, int] = field(default_factory=dict)
@@ -136,12 +159,15 @@ class ChaosResult:
     true_at_hq: int = 0
     companion_victims: int = 0
     false_victims: int = 0
+    merged_victims: int = 0
     hq_duplicates: int = 0
     companion_duplicates: int = 0
     missing_at_hq: list[int] = field(default_factory=list)
     relay: RelayLog | None = None
     acked_not_stored: list[int] = field(default_factory=list)
     longest_wait_s: float | None = None
+    confirmed_at_s: list[float] = field(default_factory=list)  # mission time of each
+    longest_report_wait_s: float | None = None
     companion_unplanned: int = 0
     companion_quick: int = 0
     hq_unplanned: int = 0
@@ -162,8 +188,8 @@ class ChaosResult:
             "victims: true / confirmed by the companion / at the HQ": (
                 f"{self.true_victims} / {self.true_confirmed} / {self.true_at_hq}"
             ),
-            "companion victim IDs reported (false ones)": (
-                f"{self.companion_victims} ({self.false_victims})"
+            "companion victim IDs reported (false / merged into another)": (
+                f"{self.companion_victims} ({self.false_victims} / {self.merged_victims})"
             ),
             "duplicate HQ victims / duplicate companion IDs for one person": (
                 f"{self.hq_duplicates} / {self.companion_duplicates}"
@@ -194,6 +220,14 @@ class ChaosResult:
             ),
             "longest wait of a confirmed victim for the HQ, s": (
                 round(self.longest_wait_s, 1) if self.longest_wait_s is not None else "n/a"
+            ),
+            "victims confirmed at mission time, s": (
+                ", ".join(f"{t:.0f}" for t in self.confirmed_at_s) or "none"
+            ),
+            "longest wait of any report (news) for the HQ, s": (
+                round(self.longest_report_wait_s, 1)
+                if self.longest_report_wait_s is not None
+                else "n/a"
             ),
             "drain after the mission, s": round(self.drain_s, 1)
             if self.drain_s is not None
@@ -318,7 +352,7 @@ def run_chaos(
     out.mkdir(parents=True, exist_ok=True)
     result = ChaosResult(seed, mission_s)
     world = chaos_world()
-    world = dataclasses.replace(world, route_ne_m=_route_for(world, mission_s))
+    world = dataclasses.replace(world, route_ne_m=patrol_route(world, mission_s))
     plan = plan_faults(mission_s, seed)
     say(
         f"chaos: seed {seed}, {mission_s:.0f} s, {len(world.victims)} victims, "
@@ -327,6 +361,7 @@ def run_chaos(
     state_dir = out / "companion-state"
     hq_db = out / "hq.sqlite"
     start = time.monotonic()
+    result.started_unix_s = time.time()
     stop = threading.Event()
     with (
         small_disk(state_dir) as disk_problem,
@@ -476,6 +511,7 @@ def _check(
     companion_points = list(live.values())
     result.true_victims = len(world.victims)
     result.companion_victims = len(reported)
+    result.merged_victims = sum(v[0] == TrackState.MERGED.name for v in reported.values())
     result.false_victims = sum(
         not any(math.hypot(t.north_m - n, t.east_m - e) <= GATE_M for t in world.victims)
         for n, e in companion_points
@@ -522,6 +558,11 @@ def _check(
         if (1, vid) in first_at_hq and vid in decided
     ]
     result.longest_wait_s = max(waits) if waits else None
+    report_waits = _stored_waits(hq_db).values()
+    result.longest_report_wait_s = max(report_waits) if report_waits else None
+    result.confirmed_at_s = sorted(
+        decided[vid] / 1e6 - result.started_unix_s for vid in reported if vid in decided
+    )
     result.companion_unplanned = len(companion.unplanned_exits())
     result.companion_quick = companion.quick_unplanned_exits()
     result.hq_unplanned = len(hq.unplanned_exits())
@@ -543,8 +584,17 @@ def _check(
 
 
 def _stored_seqs(hq_db: Path) -> set[int]:
+    return set(_stored_waits(hq_db))
+
+
+def _stored_waits(hq_db: Path) -> dict[int, float]:
+    """Each report the HQ stored from robot 1: seconds from its making to its receipt."""
     db = _read_only(hq_db)
     try:
-        return {int(r[0]) for r in db.execute("SELECT report_seq FROM reports WHERE robot_sysid=1")}
+        rows = db.execute(
+            "SELECT report_seq, received_unix_s - report_time_usec / 1e6 FROM reports"
+            " WHERE robot_sysid=1"
+        ).fetchall()
     finally:
         db.close()
+    return {int(seq): float(wait) for seq, wait in rows}

@@ -5,6 +5,7 @@ relay and the systemd-like supervisor."""
 from __future__ import annotations
 
 import itertools
+import math
 import signal
 import socket
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from scenarios.chaos import plan_faults
+from scenarios.chaos import SPEED_M_S, chaos_world, patrol_route, plan_faults
 from scenarios.lossyrelay import LossyRelay
 from scenarios.supervise import Supervised
 
@@ -33,6 +34,21 @@ def test_fault_plan_is_seeded_bounded_and_complete(mission_s: float) -> None:
         b - a >= min(15.0, mission_s / (3 * len(kills))) for a, b in itertools.pairwise(kills)
     )
     assert kinds.index("disk-fill") < kinds.index("disk-free")
+
+
+def test_the_patrol_finds_the_people_one_at_a_time() -> None:
+    world = chaos_world()
+    route = patrol_route(world, 600.0)
+    assert route[0] == world.start_ne_m
+    # The route visits each person's east in turn and never comes back to an earlier one.
+    easts = [e for _, e in route]
+    assert easts == sorted(easts) and len(set(easts)) == len(world.victims)
+    # Each patrol but the last lasts about a third of the mission (200 s here): less
+    # the drive from the previous person (8 m, 32 s), plus up to one back-and-forth.
+    for v in world.victims[:-1]:
+        legs = [p for p in route if p[1] == v.east_m]
+        driven_m = sum(math.dist(a, b) for a, b in itertools.pairwise(legs))
+        assert 200.0 - 8.5 / SPEED_M_S <= driven_m / SPEED_M_S <= 200.0 + 10.0 / SPEED_M_S
 
 
 def _udp() -> socket.socket:
