@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SYSTAMP := $(VENV)/.system-packages
 
-.PHONY: demo test lint typecheck pytest bench fuzz fuzz-companion clean system-packages
+.PHONY: demo test lint typecheck pytest bench chaos fuzz fuzz-companion clean system-packages
 
 # Debian/Raspberry Pi OS packages the project needs: venv support for python3,
 # systemd's systemd-analyze for the unit-file tests, and chromium + chromium-driver for
@@ -47,6 +47,14 @@ pytest: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m bench
+
+# A simulated mission under radio loss, kills, restarts, a reboot and a full disk
+# (bench/chaos.py): 20 minutes and seed 16 unless CHAOS_SECONDS / CHAOS_SEED say
+# otherwise; writes its section of BENCHMARKS.md and fails when a check fails.
+CHAOS_SECONDS ?= 1200
+CHAOS_SEED ?= 16
+chaos: $(STAMP)
+	CHAOS_SECONDS=$(CHAOS_SECONDS) CHAOS_SEED=$(CHAOS_SEED) $(BIN)/python -m bench.chaos
 
 # The vehicle-link fuzzer for 60 s with a fresh seed (the default test run gives it
 # 3 s with seed 16); a failure prints the seed, FUZZ_SEED=<seed> repeats it.

@@ -878,12 +878,18 @@ class Service:
         """Save, then close everything; safe twice."""
         try:
             self._apply_acks()  # heard before the stop: do not resend them after a restart
-            with self.store.transaction():
-                self.store.set("tracker", self.tracker.snapshot())
-                self.store.set("reported", self.policy.snapshot())
-                self.store.set("report_seq", self._report_seq)
+            # The reports a full disk kept in memory go into this last commit with the
+            # policy that counts them as reported, else a restart would never send them.
+            self._commit([])
         except Exception:
             log.exception("saving the victim registry at shutdown failed")
+        if self._unsaved:
+            log.error(
+                "stopping with the disk still full: %d victims' reports (IDs %s) are not "
+                "saved and will not be sent",
+                len(self._unsaved),
+                sorted(self._unsaved),
+            )
         self.camera.close()
         if self.video is not None:
             self.video.close()

@@ -1,0 +1,600 @@
+"""A seeded, bounded chaos mission: the real companion and HQ under loss and faults.
+
+    result = run_chaos(Path("out"), mission_s=1200.0, seed=16)
+    result.failures   # [] when every check passed
+    result.figures()  # what BENCHMARKS.md shows
+
+The simulated rover patrols across each person of ``chaos_world()`` in turn
+(``patrol_route``: the ``mixed`` preset's three people, fully visible, 8 m apart)
+while the real ``rescue-companion run`` and
+``rescue-hq`` run as children (scenarios.supervise: restarted as systemd would).
+The HQ hears the rover's ground port only through a LossyRelay (30 % of datagrams
+lost each way). A seeded schedule (``plan_faults``) kills the companion with
+SIGKILL at random moments, stops the HQ once with SIGTERM and once with SIGKILL
+(each restarted), reboots the simulated autopilot, and fills the companion's state
+disk (its own small tmpfs: needs root and mount; skipped and said so otherwise)
+for a while. At the end the camera stops (no new news), the harness waits until
+the companion's outbox holds no report and every victim it reported is at the HQ
+(bounded), stops both, and checks (``_check``):
+
+- every true victim the companion confirmed is at the HQ with exactly one HQ ID,
+  and no victim the companion's store reported is missing at the HQ;
+- every report the HQ acknowledged (seen on the radio) is in its registry;
+- no process exited without being asked to soon after its start (a restart loop),
+  nor at all; both stop cleanly at the end; no traceback in any log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import json
+import logging
+import math
+import os
+import random
+import signal
+import sqlite3
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fusion.types import TrackState
+from hq.registry import Registry
+from hq.view import hq_victims
+from mavlink_io.dialect import RESCUE_VICTIM_REPORT_ID
+from scenarios.live import LiveSim
+from scenarios.lossyrelay import LossyRelay, RelayLog
+from scenarios.supervise import Supervised
+from scenarios.world import PointNE, World, preset
+
+log = logging.getLogger(__name__)
+
+LOSS = 0.30  # share of datagrams lost on the radio, each way
+GATE_M = 1.0  # a reported victim within this of a true one is that person (bench.accuracy)
+CAMERA_FPS = 5.0  # ~100 ms of vision a frame on a loaded 2-core machine
+SPEED_M_S = 0.25  # slow enough for a handful of processed frames per pass
+RESTART_DELAY_S = 2.0  # systemd/rescue-companion.service: RestartSec=2
+DISK_BYTES = 96 * 1024 * 1024  # above the companion's 64 MB "disk full" warning level
+DRAIN_MAX_S = 240.0  # resends back off to 30 s; at 30 % loss each way, a few rounds
+POLL_S = 1.0
+ACK_ACCEPTED, ACK_DUPLICATE = 0, 1
+_LEAD_M = 2.5  # a pass starts this far short of its victim and ends as far beyond
+
+
+_SPACING_M = 8.0  # between the people, east: out of the camera's view during another's patrol
+_PLACES_NE_M = ((3.0, 3.0), (5.0, 3.0 + _SPACING_M), (3.5, 3.0 + 2 * _SPACING_M))
+
+
+def chaos_world() -> World:
+    """The ``mixed`` preset's three people, fully visible (debris and dark zone
+    cleared, so the detector finds each on a pass), 8 m apart along the east of an
+    8 m x 22 m floor. The route is set per mission by ``patrol_route``."""
+    base = preset("mixed")
+    victims = tuple(
+        dataclasses.replace(v, north_m=n, east_m=e)
+        for v, (n, e) in zip(base.victims, _PLACES_NE_M, strict=True)
+    )
+    first = victims[0]
+    return dataclasses.replace(
+        base,
+        name="chaos",
+        size_m=(8.0, 3.0 + 2 * _SPACING_M + 3.0),
+        debris=(),
+        light_zones=(),
+        victims=victims,
+        start_ne_m=(max(0.3, first.north_m - _LEAD_M), first.east_m),
+        start_heading_rad=0.0,
+        route_ne_m=(),
+    )
+
+
+def patrol_route(world: World, mission_s: float) -> tuple[PointNE, ...]:
+    """Back and forth (north-south) across one person after the other, a third of
+    the mission each, so the people are found one at a time while the faults come:
+    from one patrol the next person is 8 m to the side, out of view. The last
+    patrol goes on past the mission's end (the rover never stops)."""
+    n_max = world.size_m[0] - 0.3
+    route: list[PointNE] = []
+    budget_m = mission_s / len(world.victims) * SPEED_M_S
+    for i, v in enumerate(world.victims):
+        near = (max(0.3, v.north_m - _LEAD_M), v.east_m)
+        far = (min(n_max, v.north_m + _LEAD_M), v.east_m)
+        driven = math.dist(route[-1], near) if route else 0.0
+        route.append(near)
+        last = i == len(world.victims) - 1
+        while driven < budget_m * (3 if last else 1):
+            route += [far, near]
+            driven += 2 * math.dist(near, far)
+    return tuple(route)
+
+
+@dataclass(frozen=True)
+class Fault:
+    at_s: float
+    kind: str  # "companion-kill", "hq-term", "hq-kill", "reboot", "disk-fill", "disk-free"
+
+
+def plan_faults(mission_s: float, seed: int) -> list[Fault]:
+    """The seeded schedule over ``[0, mission_s)``: one SIGKILL of the companion per
+    150 s (at least one) at random moments at least 15 s apart, the HQ's SIGTERM and
+    SIGKILL, one autopilot reboot, and the disk full for 5 % of the mission (10-60 s)."""
+    rng = random.Random(seed)
+    d = mission_s
+    plan = [
+        Fault(rng.uniform(0.20, 0.30) * d, "hq-term"),
+        Fault(rng.uniform(0.40, 0.50) * d, "reboot"),
+        Fault(rng.uniform(0.55, 0.65) * d, "hq-kill"),
+    ]
+    fill = rng.uniform(0.70, 0.75) * d
+    plan += [Fault(fill, "disk-fill"), Fault(fill + min(60.0, max(10.0, 0.05 * d)), "disk-free")]
+    kills: list[float] = []
+    wanted = max(1, round(d / 150.0))
+    spacing = min(15.0, d / (3 * wanted))
+    while len(kills) < wanted:
+        t = rng.uniform(0.10, 0.90) * d
+        if all(abs(t - k) >= spacing for k in kills):
+            kills.append(t)
+    plan += [Fault(t, "companion-kill") for t in kills]
+    return sorted(plan, key=lambda f: f.at_s)
+
+
+@dataclass
+class ChaosResult:
+    seed: int
+    mission_s: float
+    started_unix_s: float = 0.0
+    total_s: float = 0.0
+    drain_s: float | None = None  # None: the drain did not finish in time
+    faults_done: dict[str, int] = field(default_factory=dict)
+    disk_note: str = ""
+    true_victims: int = 0
+    true_confirmed: int = 0
+    true_at_hq: int = 0
+    companion_victims: int = 0
+    false_victims: int = 0
+    merged_victims: int = 0
+    hq_duplicates: int = 0
+    companion_duplicates: int = 0
+    missing_at_hq: list[int] = field(default_factory=list)
+    relay: RelayLog | None = None
+    acked_not_stored: list[int] = field(default_factory=list)
+    longest_wait_s: float | None = None
+    confirmed_at_s: list[float] = field(default_factory=list)  # mission time of each
+    longest_report_wait_s: float | None = None
+    companion_unplanned: int = 0
+    companion_quick: int = 0
+    hq_unplanned: int = 0
+    hq_quick: int = 0
+    tracebacks: int = 0
+    failures: list[str] = field(default_factory=list)
+    details: list[str] = field(default_factory=list)  # per victim, for the log
+
+    def figures(self) -> dict[str, object]:
+        r = self.relay
+        reports = r.reports if r is not None else []
+        acks = r.acks if r is not None else []
+        good_acks = {a.seq for a in acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
+        return {
+            "seed": self.seed,
+            "mission length, s": round(self.mission_s),
+            "run length with drain and stops, s": round(self.total_s),
+            "victims: true / confirmed by the companion / at the HQ": (
+                f"{self.true_victims} / {self.true_confirmed} / {self.true_at_hq}"
+            ),
+            "companion victim IDs reported (false / merged into another)": (
+                f"{self.companion_victims} ({self.false_victims} / {self.merged_victims})"
+            ),
+            "duplicate HQ victims / duplicate companion IDs for one person": (
+                f"{self.hq_duplicates} / {self.companion_duplicates}"
+            ),
+            "companion victims missing at the HQ": len(self.missing_at_hq),
+            "radio datagrams lost down / up, %": (
+                f"{r.down.loss_pct:.1f} / {r.up.loss_pct:.1f}" if r is not None else "n/a"
+            ),
+            "reports sent (transmissions) / distinct / resent": (
+                f"{len(reports)} / {len({x.report_seq for x in reports})} / "
+                f"{len(reports) - len({x.report_seq for x in reports})}"
+            ),
+            "reports acknowledged by the HQ (distinct) / acks sent / rejected": (
+                f"{len(good_acks)} / {len(acks)} / "
+                f"{sum(a.result not in (ACK_ACCEPTED, ACK_DUPLICATE) for a in acks)}"
+            ),
+            "acknowledged reports missing from the registry": len(self.acked_not_stored),
+            "operator RESEND/actions sent by the HQ": r.actions if r is not None else 0,
+            "companion SIGKILLs": self.faults_done.get("companion-kill", 0),
+            "HQ SIGTERM / SIGKILL restarts": (
+                f"{self.faults_done.get('hq-term', 0)} / {self.faults_done.get('hq-kill', 0)}"
+            ),
+            "autopilot reboots": self.faults_done.get("reboot", 0),
+            "state disk filled": self.disk_note,
+            "unplanned exits companion / HQ (of which quick)": (
+                f"{self.companion_unplanned} ({self.companion_quick}) / "
+                f"{self.hq_unplanned} ({self.hq_quick})"
+            ),
+            "longest wait of a confirmed victim for the HQ, s": (
+                round(self.longest_wait_s, 1) if self.longest_wait_s is not None else "n/a"
+            ),
+            "victims confirmed at mission time, s": (
+                ", ".join(f"{t:.0f}" for t in self.confirmed_at_s) or "none"
+            ),
+            "longest wait of any report (news) for the HQ, s": (
+                round(self.longest_report_wait_s, 1)
+                if self.longest_report_wait_s is not None
+                else "n/a"
+            ),
+            "drain after the mission, s": round(self.drain_s, 1)
+            if self.drain_s is not None
+            else "timed out",
+            "tracebacks in the logs": self.tracebacks,
+            "checks": "all passed" if not self.failures else "FAILED: " + "; ".join(self.failures),
+        }
+
+
+# -- the state disk --------------------------------------------------------------------
+
+
+@contextmanager
+def small_disk(mount_point: Path) -> Iterator[str]:
+    """A tmpfs of DISK_BYTES at ``mount_point``; yields "" or why there is none."""
+    mount_point.mkdir(parents=True, exist_ok=True)
+    if os.geteuid() != 0:
+        yield "skipped: mounting a small tmpfs needs root"
+        return
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={DISK_BYTES}", "tmpfs", str(mount_point)],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    if done.returncode != 0:
+        yield f"skipped: cannot mount a tmpfs here ({done.stderr.strip()})"
+        return
+    try:
+        yield ""
+    finally:
+        subprocess.run(["umount", "-l", str(mount_point)], check=False)
+
+
+def fill(directory: Path) -> Path:
+    """Fill the filesystem of ``directory`` to the last byte; the filler file."""
+    filler = directory / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT, 0o600)
+    try:
+        for size in (1024 * 1024, 64 * 1024, 4096, 512, 1):
+            try:
+                while True:
+                    os.write(fd, bytes(size))
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC:
+                    raise
+    finally:
+        os.close(fd)
+    return filler
+
+
+# -- reading the two databases while and after they run ------------------------------
+
+
+def _read_only(path: Path) -> sqlite3.Connection:
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=5.0)
+    db.execute("PRAGMA query_only=1")
+    return db
+
+
+def companion_reported(state_db: Path) -> tuple[dict[int, list[Any]], int]:
+    """The companion store's reported victims and the reports still in its outbox."""
+    if not state_db.exists():
+        return {}, 0
+    db = _read_only(state_db)
+    try:
+        row = db.execute("SELECT value FROM kv WHERE key='reported'").fetchone()
+        pending = db.execute(
+            "SELECT COUNT(*) FROM outbox WHERE msgid=?", (RESCUE_VICTIM_REPORT_ID,)
+        ).fetchone()[0]
+    finally:
+        db.close()
+    reported = {int(k): v for k, v in json.loads(row[0]).items()} if row else {}
+    return reported, int(pending)
+
+
+def hq_sources(hq_db: Path, sysid: int) -> set[int]:
+    if not hq_db.exists():
+        return set()
+    db = _read_only(hq_db)
+    try:
+        rows = db.execute("SELECT victim_id FROM sources WHERE robot_sysid=?", (sysid,)).fetchall()
+    except sqlite3.OperationalError:  # not created yet
+        return set()
+    finally:
+        db.close()
+    return {int(r[0]) for r in rows}
+
+
+def _wait(condition: Callable[[], bool], timeout_s: float, stop: threading.Event) -> float | None:
+    """Seconds until ``condition`` held (checked every POLL_S), None on timeout."""
+    start = time.monotonic()
+    while True:
+        try:
+            if condition():
+                return time.monotonic() - start
+        except sqlite3.Error as exc:  # a database mid-checkpoint: ask again
+            log.debug("chaos: condition not readable yet: %s", exc)
+        if time.monotonic() - start >= timeout_s or stop.wait(POLL_S):
+            return None
+
+
+# -- the mission -----------------------------------------------------------------------
+
+
+def _companion_config(out: Path, sim: LiveSim, state_dir: Path) -> Path:
+    cfg = out / "companion.toml"
+    cfg.write_text(
+        "# Written by scenarios.chaos\n"
+        f'[vehicle]\nurl = "{sim.vehicle_url}"\n'
+        '[hq]\nurl = ""\ntunnel = true\n'
+        f'[camera]\nsource = "{sim.camera_source}"\n'
+        f'[paths]\nstate_dir = "{state_dir}"\n'
+        "[video]\nenabled = false\n"
+    )
+    return cfg
+
+
+def run_chaos(
+    out: Path, mission_s: float, seed: int, *, say: Callable[[str], None] = print
+) -> ChaosResult:
+    """The mission of the module docstring in ``out`` (logs, databases); its result."""
+    out = out.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    result = ChaosResult(seed, mission_s)
+    world = chaos_world()
+    world = dataclasses.replace(world, route_ne_m=patrol_route(world, mission_s))
+    plan = plan_faults(mission_s, seed)
+    say(
+        f"chaos: seed {seed}, {mission_s:.0f} s, {len(world.victims)} victims, "
+        f"{LOSS:.0%} loss; faults: " + ", ".join(f"{f.kind}@{f.at_s:.0f}s" for f in plan)
+    )
+    state_dir = out / "companion-state"
+    hq_db = out / "hq.sqlite"
+    start = time.monotonic()
+    result.started_unix_s = time.time()
+    stop = threading.Event()
+    with (
+        small_disk(state_dir) as disk_problem,
+        LiveSim(world, fps=CAMERA_FPS, speed_m_s=SPEED_M_S, seed=seed) as sim,
+        LossyRelay(("127.0.0.1", sim.rover.local_address(1)[1]), loss=LOSS, seed=seed) as relay,
+    ):
+        if disk_problem:
+            say(f"chaos: state disk {disk_problem}")
+            plan = [f for f in plan if not f.kind.startswith("disk")]
+        result.disk_note = disk_problem or "not yet"
+        env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
+        companion = Supervised(
+            "rescue-companion",
+            [
+                sys.executable,
+                "-m",
+                "companion.cli",
+                "run",
+                "--config",
+                str(_companion_config(out, sim, state_dir)),
+            ],
+            out / "companion.log",
+            restart_delay_s=RESTART_DELAY_S,
+            env=env,
+        )
+        hq = Supervised(
+            "rescue-hq",
+            [
+                sys.executable, "-m", "hq.cli", "--listen", f"udpout:127.0.0.1:{relay.port}",
+                "--db", str(hq_db), "--no-table", "--no-web", "--sbs", "off",
+            ],
+            out / "hq.log",
+            restart_delay_s=RESTART_DELAY_S,
+            env=env,
+        )  # fmt: skip
+        hq.start()
+        companion.start()
+        filler: Path | None = None
+        try:
+            for fault in plan:
+                if stop.wait(max(0.0, start + fault.at_s - time.monotonic())):
+                    break
+                filler = _inject(fault, companion, hq, sim, state_dir, filler, result, say)
+            stop.wait(max(0.0, start + mission_s - time.monotonic()))
+        finally:
+            if filler is not None:
+                filler.unlink(missing_ok=True)
+            sim.camera.close()  # no new news: what is known must now reach the HQ
+        say("chaos: mission over, camera off; waiting for the outbox to drain")
+        state_db = state_dir / "companion.sqlite"
+
+        def drained() -> bool:
+            reported, pending = companion_reported(state_db)
+            return pending == 0 and set(reported) <= hq_sources(hq_db, 1)
+
+        result.drain_s = _wait(drained, DRAIN_MAX_S, stop)
+        rc_companion = companion.stop()
+        rc_hq = hq.stop()
+        result.relay = relay.snapshot()
+        reported, pending = companion_reported(state_db)  # before the tmpfs goes
+    result.total_s = time.monotonic() - start
+    if rc_companion not in (0, None) or rc_hq not in (0, None):
+        result.failures.append(f"exit status at the end: companion {rc_companion}, HQ {rc_hq}")
+    if rc_companion is None or rc_hq is None:
+        result.failures.append(
+            f"not running at the end: companion {rc_companion is None}, HQ {rc_hq is None}"
+        )
+    _check(result, world, reported, pending, hq_db, companion, hq, out)
+    for line in result.details:
+        say(f"chaos: {line}")
+    return result
+
+
+def _inject(
+    fault: Fault,
+    companion: Supervised,
+    hq: Supervised,
+    sim: LiveSim,
+    state_dir: Path,
+    filler: Path | None,
+    result: ChaosResult,
+    say: Callable[[str], None],
+) -> Path | None:
+    """Apply one fault; the filler file while the disk is full."""
+    done = True
+    if fault.kind == "companion-kill":
+        done = companion.signal(signal.SIGKILL)
+    elif fault.kind == "hq-term":
+        done = hq.signal(signal.SIGTERM)
+    elif fault.kind == "hq-kill":
+        done = hq.signal(signal.SIGKILL)
+    elif fault.kind == "reboot":
+        sim.rover.reboot()
+    elif fault.kind == "disk-fill":
+        filler = fill(state_dir)
+        result.disk_note = "full, not yet freed"
+    elif fault.kind == "disk-free" and filler is not None:
+        filler.unlink()
+        filler = None
+        result.disk_note = f"once, for {_disk_seconds(fault, result):.0f} s"
+    if done:
+        result.faults_done[fault.kind] = result.faults_done.get(fault.kind, 0) + 1
+    say(f"chaos: {fault.at_s:6.0f} s {fault.kind}{'' if done else ' (was not running)'}")
+    return filler
+
+
+def _disk_seconds(free: Fault, result: ChaosResult) -> float:
+    fill_at = [f.at_s for f in plan_faults(result.mission_s, result.seed) if f.kind == "disk-fill"]
+    return free.at_s - fill_at[0] if fill_at else 0.0
+
+
+def _near(points: list[tuple[float, float]], north_m: float, east_m: float) -> int:
+    return sum(math.hypot(n - north_m, e - east_m) <= GATE_M for n, e in points)
+
+
+def _listing(items: list[tuple[int, tuple[float, float]]], north_m: float, east_m: float) -> str:
+    near = [
+        f"{i} ({n:.2f}, {e:.2f})"
+        for i, (n, e) in items
+        if math.hypot(n - north_m, e - east_m) <= 2 * GATE_M
+    ]
+    return ", ".join(near) or "none"
+
+
+def _check(
+    result: ChaosResult,
+    world: World,
+    reported: dict[int, list[Any]],
+    pending: int,
+    hq_db: Path,
+    companion: Supervised,
+    hq: Supervised,
+    out: Path,
+) -> None:
+    fails = result.failures
+    live = {
+        vid: (float(v[2]), float(v[3]))
+        for vid, v in reported.items()
+        if v[0] not in (TrackState.MERGED.name, TrackState.FALSE_ALARM.name)
+    }
+    with Registry(hq_db) as registry:
+        victims = [v for v in hq_victims(registry) if v.state is not TrackState.FALSE_ALARM]
+        sources = {s.report.victim_id for s in registry.sources() if s.report.robot_sysid == 1}
+        first_at_hq = registry.first_received_unix_s()
+    stored = _stored_seqs(hq_db)
+    hq_points = [(v.north_m, v.east_m) for v in victims]
+    companion_points = list(live.values())
+    result.true_victims = len(world.victims)
+    result.companion_victims = len(reported)
+    result.merged_victims = sum(v[0] == TrackState.MERGED.name for v in reported.values())
+    result.false_victims = sum(
+        not any(math.hypot(t.north_m - n, t.east_m - e) <= GATE_M for t in world.victims)
+        for n, e in companion_points
+    )
+    for t in world.victims:
+        by_companion = _near(companion_points, t.north_m, t.east_m)
+        at_hq = _near(hq_points, t.north_m, t.east_m)
+        result.true_confirmed += by_companion > 0
+        result.true_at_hq += at_hq > 0
+        result.companion_duplicates += max(0, by_companion - 1)
+        result.hq_duplicates += max(0, at_hq - 1)
+        result.details.append(
+            f"true victim {t.victim_id} at ({t.north_m:.2f}, {t.east_m:.2f}): companion "
+            + _listing([(vid, p) for vid, p in live.items()], t.north_m, t.east_m)
+            + "; HQ "
+            + _listing([(v.hq_id, (v.north_m, v.east_m)) for v in victims], t.north_m, t.east_m)
+        )
+        if by_companion > 1:
+            fails.append(
+                f"true victim {t.victim_id}: the companion itself holds {by_companion} victim"
+                f" IDs for it (so the HQ has {at_hq} HQ victims; want exactly 1)"
+            )
+        elif by_companion and at_hq != 1:
+            fails.append(f"true victim {t.victim_id}: {at_hq} HQ victims (want exactly 1)")
+    result.missing_at_hq = sorted(set(reported) - sources)
+    if result.missing_at_hq:
+        fails.append(f"companion victims missing at the HQ: {result.missing_at_hq}")
+    if pending:
+        fails.append(f"{pending} reports still in the companion's outbox")
+    if result.drain_s is None:
+        fails.append(f"the outbox did not drain within {DRAIN_MAX_S:.0f} s")
+    relay = result.relay
+    assert relay is not None
+    acked = {a.seq for a in relay.acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
+    result.acked_not_stored = sorted(acked - stored)
+    if result.acked_not_stored:
+        fails.append(f"acknowledged but not in the registry: seq {result.acked_not_stored[:10]}")
+    decided: dict[int, int] = {}  # victim -> earliest report time (its confirmation)
+    for r in relay.reports:
+        decided[r.victim_id] = min(decided.get(r.victim_id, r.time_usec), r.time_usec)
+    waits = [
+        first_at_hq[(1, vid)] - decided[vid] / 1e6
+        for vid in reported
+        if (1, vid) in first_at_hq and vid in decided
+    ]
+    result.longest_wait_s = max(waits) if waits else None
+    report_waits = _stored_waits(hq_db).values()
+    result.longest_report_wait_s = max(report_waits) if report_waits else None
+    result.confirmed_at_s = sorted(
+        decided[vid] / 1e6 - result.started_unix_s for vid in reported if vid in decided
+    )
+    result.companion_unplanned = len(companion.unplanned_exits())
+    result.companion_quick = companion.quick_unplanned_exits()
+    result.hq_unplanned = len(hq.unplanned_exits())
+    result.hq_quick = hq.quick_unplanned_exits()
+    for name, sup in (("companion", companion), ("HQ", hq)):
+        exits = [r.returncode for r in sup.unplanned_exits()]
+        if exits:
+            fails.append(f"{name} exited unasked {len(exits)} times (status {exits})")
+    result.tracebacks = sum(
+        (out / name).read_text(errors="replace").count("Traceback")
+        for name in ("companion.log", "hq.log")
+    )
+    if result.tracebacks:
+        fails.append(f"{result.tracebacks} tracebacks in the logs")
+    if result.true_confirmed == 0:
+        fails.append("the companion confirmed no true victim: nothing was tested")
+    if result.disk_note.startswith(("full", "not yet")):
+        fails.append(f"state disk: {result.disk_note}")
+
+
+def _stored_seqs(hq_db: Path) -> set[int]:
+    return set(_stored_waits(hq_db))
+
+
+def _stored_waits(hq_db: Path) -> dict[int, float]:
+    """Each report the HQ stored from robot 1: seconds from its making to its receipt."""
+    db = _read_only(hq_db)
+    try:
+        rows = db.execute(
+            "SELECT report_seq, received_unix_s - report_time_usec / 1e6 FROM reports"
+            " WHERE robot_sysid=1"
+        ).fetchall()
+    finally:
+        db.close()
+    return {int(seq): float(wait) for seq, wait in rows}

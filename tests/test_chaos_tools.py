@@ -1,0 +1,130 @@
+"""The chaos mission's tools (the mission itself is `make chaos`: 20 minutes, too long
+for the default run on this machine): its seeded fault schedule, the lossy radio
+relay and the systemd-like supervisor."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from scenarios.chaos import SPEED_M_S, chaos_world, patrol_route, plan_faults
+from scenarios.lossyrelay import LossyRelay
+from scenarios.supervise import Supervised
+
+
+@pytest.mark.parametrize("mission_s", [90.0, 1200.0])
+def test_fault_plan_is_seeded_bounded_and_complete(mission_s: float) -> None:
+    plan = plan_faults(mission_s, 16)
+    assert plan == plan_faults(mission_s, 16)
+    assert plan != plan_faults(mission_s, 17)
+    assert all(0.0 < f.at_s < mission_s for f in plan)
+    kinds = [f.kind for f in plan]
+    for once in ("hq-term", "hq-kill", "reboot", "disk-fill", "disk-free"):
+        assert kinds.count(once) == 1
+    kills = [f.at_s for f in plan if f.kind == "companion-kill"]
+    assert len(kills) == max(1, round(mission_s / 150.0))
+    assert all(
+        b - a >= min(15.0, mission_s / (3 * len(kills))) for a, b in itertools.pairwise(kills)
+    )
+    assert kinds.index("disk-fill") < kinds.index("disk-free")
+
+
+def test_the_patrol_finds_the_people_one_at_a_time() -> None:
+    world = chaos_world()
+    route = patrol_route(world, 600.0)
+    assert route[0] == world.start_ne_m
+    # The route visits each person's east in turn and never comes back to an earlier one.
+    easts = [e for _, e in route]
+    assert easts == sorted(easts) and len(set(easts)) == len(world.victims)
+    # Each patrol but the last lasts about a third of the mission (200 s here): less
+    # the drive from the previous person (8 m, 32 s), plus up to one back-and-forth.
+    for v in world.victims[:-1]:
+        legs = [p for p in route if p[1] == v.east_m]
+        driven_m = sum(math.dist(a, b) for a, b in itertools.pairwise(legs))
+        assert 200.0 - 8.5 / SPEED_M_S <= driven_m / SPEED_M_S <= 200.0 + 10.0 / SPEED_M_S
+
+
+def _udp() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.05)
+    return sock
+
+
+def _drain(sock: socket.socket, quiet_s: float = 0.5) -> tuple[int, object]:
+    """Datagrams that arrive until none came for ``quiet_s``, and the last sender."""
+    n, last, sender = 0, time.monotonic(), None
+    while time.monotonic() - last < quiet_s:
+        try:
+            _data, sender = sock.recvfrom(65535)
+        except TimeoutError:
+            continue
+        n, last = n + 1, time.monotonic()
+    return n, sender
+
+
+def _send(sock: socket.socket, to: object, n: int) -> None:
+    for _ in range(n):
+        sock.sendto(b"x", to)
+        time.sleep(0.001)  # paced: a burst would overflow loopback's socket buffers
+
+
+def test_relay_loses_its_share_each_way_and_answers_the_latest_hq() -> None:
+    rover, hq, hq_again = _udp(), _udp(), _udp()
+    with LossyRelay(rover.getsockname(), loss=0.3, seed=16) as relay:
+        _send(hq, ("127.0.0.1", relay.port), 150)
+        up, relay_side = _drain(rover)  # the rover answers where the relay speaks from
+        _send(rover, relay_side, 150)
+        down, _ = _drain(hq)
+        _send(hq_again, ("127.0.0.1", relay.port), 1)  # the HQ restarted on a new port
+        restarted, _ = _drain(rover, 0.3)
+        _send(rover, relay_side, 10)
+        again, _ = _drain(hq_again, 0.3)
+        log = relay.snapshot()
+    for sock in (rover, hq, hq_again):
+        sock.close()
+    # 150 Bernoulli(0.7) trials (few enough for loopback's socket buffers): sd ~5.6,
+    # so +-25 is more than 4 sd.
+    assert abs(up - 105) <= 25 and abs(down - 105) <= 25
+    assert (log.up.datagrams, log.down.datagrams) == (151, 160)
+    assert log.up.dropped == 151 - up - restarted
+    assert log.down.dropped == 160 - down - again
+    assert again >= 1  # all 10 lost: 0.3^10
+
+
+def test_supervisor_restarts_as_systemd_and_counts_a_restart_loop(tmp_path: Path) -> None:
+    crash = Supervised(
+        "crash",
+        [sys.executable, "-c", "import sys; sys.exit(1)"],
+        tmp_path / "crash.log",
+        restart_delay_s=0.1,
+    ).start()
+    deadline = time.monotonic() + 20.0
+    while len(crash.runs) < 3 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    crash.stop()
+    assert len(crash.runs) >= 3
+    assert crash.quick_unplanned_exits() >= 2
+    sleeper = Supervised(
+        "sleeper",
+        [sys.executable, "-c", "import time; time.sleep(60)"],
+        tmp_path / "sleeper.log",
+        restart_delay_s=0.1,
+    ).start()
+    try:
+        assert sleeper.signal(signal.SIGKILL)
+        deadline = time.monotonic() + 20.0
+        while len(sleeper.runs) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(sleeper.runs) == 2 and sleeper.runs[0].planned == "SIGKILL"
+        assert sleeper.unplanned_exits() == []
+    finally:
+        assert sleeper.stop() == -signal.SIGTERM
+    assert (tmp_path / "sleeper.log").read_text().count("--- chaos: start sleeper") == 2
