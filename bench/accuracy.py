@@ -125,7 +125,7 @@ SUITE: tuple[Scenario, ...] = (
 # 5.1/29.1/38.3 s, reported at 4.5/35.1/68.1 s), so a victim lost, a class wrong or a
 # position moved shows. About 45 s for both on this machine.
 GUARD: tuple[Scenario, ...] = (
-    Scenario("guard_mixed", "preset:mixed", duration_s=90.0),
+    Scenario("guard_mixed", "preset:mixed", duration_s=55.0),
     Scenario("guard_seed2", "seed:2", duration_s=75.0),
 )
 SECTIONS = {"suite": SUITE, "guard": GUARD}
