@@ -159,7 +159,7 @@ def _steady(jpegs: list[bytes], seconds: float) -> Steady:
             done,
             sender.counters.chunks / max(1, len(done)),
             picture.chunk_count(len(jpegs[0])) if jpegs else 0,
-            radio.up.counters.overflow + radio.down.counters.overflow,
+            radio.to_ground.counters.overflow + radio.to_rover.counters.overflow,
         )
 
 
@@ -260,9 +260,9 @@ def _mission(pictures: bool, mission_s: float) -> Run:
             shown,
             jpegs,
             transfers,
-            radio.up.counters.delivered_bytes / elapsed,
-            radio.up.counters.overflow + radio.down.counters.overflow,
-            radio.up.counters.lost,
+            radio.to_ground.counters.delivered_bytes / elapsed,
+            radio.to_ground.counters.overflow + radio.to_rover.counters.overflow,
+            radio.to_ground.counters.lost,
         )
 
 

@@ -8,7 +8,7 @@ The simulated rover patrols across each person of ``chaos_world()`` in turn
 (``patrol_route``: the ``mixed`` preset's three people, fully visible, 8 m apart)
 while the real ``rescue-companion run`` and
 ``rescue-hq`` run as children (scenarios.supervise: restarted as systemd would).
-The HQ hears the rover's ground port only through a LossyRelay (30 % of datagrams
+The HQ hears the rover's ground port only through a scenarios.radio.Radio (30 % of datagrams
 lost each way). A seeded schedule (``plan_faults``) kills the companion with
 SIGKILL at random moments, stops the HQ once with SIGTERM and once with SIGKILL
 (each restarted), reboots the simulated autopilot, and fills the companion's state
@@ -50,7 +50,7 @@ from hq.registry import Registry
 from hq.view import hq_victims
 from mavlink_io.dialect import RESCUE_VICTIM_REPORT_ID
 from scenarios.live import LiveSim
-from scenarios.lossyrelay import LossyRelay, RelayLog
+from scenarios.radio import Radio, RadioLog
 from scenarios.supervise import Supervised
 from scenarios.world import PointNE, World, preset
 
@@ -163,7 +163,7 @@ class ChaosResult:
     hq_duplicates: int = 0
     companion_duplicates: int = 0
     missing_at_hq: list[int] = field(default_factory=list)
-    relay: RelayLog | None = None
+    radio: RadioLog | None = None
     acked_not_stored: list[int] = field(default_factory=list)
     longest_wait_s: float | None = None
     confirmed_at_s: list[float] = field(default_factory=list)  # mission time of each
@@ -177,7 +177,7 @@ class ChaosResult:
     details: list[str] = field(default_factory=list)  # per victim, for the log
 
     def figures(self) -> dict[str, object]:
-        r = self.relay
+        r = self.radio
         reports = r.reports if r is not None else []
         acks = r.acks if r is not None else []
         good_acks = {a.seq for a in acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
@@ -196,7 +196,9 @@ class ChaosResult:
             ),
             "companion victims missing at the HQ": len(self.missing_at_hq),
             "radio datagrams lost down / up, %": (
-                f"{r.down.loss_pct:.1f} / {r.up.loss_pct:.1f}" if r is not None else "n/a"
+                f"{r.to_ground.loss_pct:.1f} / {r.to_rover.loss_pct:.1f}"
+                if r is not None
+                else "n/a"
             ),
             "reports sent (transmissions) / distinct / resent": (
                 f"{len(reports)} / {len({x.report_seq for x in reports})} / "
@@ -366,7 +368,13 @@ def run_chaos(
     with (
         small_disk(state_dir) as disk_problem,
         LiveSim(world, fps=CAMERA_FPS, speed_m_s=SPEED_M_S, seed=seed) as sim,
-        LossyRelay(("127.0.0.1", sim.rover.local_address(1)[1]), loss=LOSS, seed=seed) as relay,
+        Radio(
+            ("127.0.0.1", sim.rover.local_address(1)[1]),
+            loss=LOSS,
+            seed=seed,
+            baud=None,
+            log_reports=True,
+        ) as radio,  # fmt: skip
     ):
         if disk_problem:
             say(f"chaos: state disk {disk_problem}")
@@ -390,7 +398,7 @@ def run_chaos(
         hq = Supervised(
             "rescue-hq",
             [
-                sys.executable, "-m", "hq.cli", "--listen", f"udpout:127.0.0.1:{relay.port}",
+                sys.executable, "-m", "hq.cli", "--listen", radio.ground_url,
                 "--db", str(hq_db), "--no-table", "--no-web", "--sbs", "off",
             ],
             out / "hq.log",
@@ -420,7 +428,7 @@ def run_chaos(
         result.drain_s = _wait(drained, DRAIN_MAX_S, stop)
         rc_companion = companion.stop()
         rc_hq = hq.stop()
-        result.relay = relay.snapshot()
+        result.radio = radio.snapshot()
         reported, pending = companion_reported(state_db)  # before the tmpfs goes
     result.total_s = time.monotonic() - start
     if rc_companion not in (0, None) or rc_hq not in (0, None):
@@ -543,14 +551,14 @@ def _check(
         fails.append(f"{pending} reports still in the companion's outbox")
     if result.drain_s is None:
         fails.append(f"the outbox did not drain within {DRAIN_MAX_S:.0f} s")
-    relay = result.relay
-    assert relay is not None
-    acked = {a.seq for a in relay.acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
+    radio = result.radio
+    assert radio is not None
+    acked = {a.seq for a in radio.acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
     result.acked_not_stored = sorted(acked - stored)
     if result.acked_not_stored:
         fails.append(f"acknowledged but not in the registry: seq {result.acked_not_stored[:10]}")
     decided: dict[int, int] = {}  # victim -> earliest report time (its confirmation)
-    for r in relay.reports:
+    for r in radio.reports:
         decided[r.victim_id] = min(decided.get(r.victim_id, r.time_usec), r.time_usec)
     waits = [
         first_at_hq[(1, vid)] - decided[vid] / 1e6

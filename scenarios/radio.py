@@ -1,30 +1,42 @@
-"""A pair of telemetry radios between two UDP peers: a bounded byte rate and loss.
+"""A pair of telemetry radios between the rover and a ground peer, on loopback UDP.
 
     with Radio(("127.0.0.1", rover_ground_port), baud=57_600, loss=0.10, seed=1) as radio:
         radio.ground_url  # "udpout:127.0.0.1:P" -> rescue-hq --listen
 
-Stands in for a SiK-style radio pair on the autopilot's telemetry port: each
-direction carries at most ``baud / 10`` bytes a second (8N1 serial: 5,760 B/s at
-57,600 baud), in the order they came (a datagram waits for the ones before it:
-queueing delay), with the radio's buffer of ``buffer_bytes`` (a datagram that does
-not fit is dropped, as a full radio or ArduPilot's full port buffer drops it), and
-loses each datagram (one MAVLink frame: the rover and rescue-hq send one per
-datagram) with probability ``loss``, seeded. Full duplex: a simplification, SiK
-radios share the air time between the two directions.
+Stands in for a SiK-style radio pair on the autopilot's telemetry port. Each
+datagram (one MAVLink frame: the rover and rescue-hq send one per datagram) is lost
+with probability ``loss``, seeded, each direction with its own draw. With a
+``baud``, each direction also carries at most ``baud / 10`` bytes a second (8N1
+serial: 5,760 B/s at 57,600 baud), in the order they came (a datagram waits for the
+ones before it: queueing delay), through the radio's buffer of ``buffer_bytes`` (a
+datagram that does not fit is dropped, as a full radio or ArduPilot's full port
+buffer drops it). ``baud=None``: loss only, no rate. Full duplex: a
+simplification, SiK radios share the air time between the two directions.
 
-The air side peer (``rover``) gets datagrams from a socket of its own; the ground
-side peer is whoever first sends to ``ground_url``'s port.
+The rover sees one peer, the radio's air socket, however often the ground side
+restarts; the ground side is whoever last sent to ``ground_url``'s port (a
+restarted rescue-hq comes from a new source port: the radio answers the latest).
+
+``log_reports=True`` also decodes every datagram (TUNNEL unwrapped) and keeps what
+concerns the victim reports with its time and fate: reports going to the ground,
+their acknowledgements and operator actions coming back (``snapshot()``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import random
 import select
 import socket
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
+
+from mavlink_io import tunnel
+from mavlink_io.codec import Codec
+from mavlink_io.dialect import RESCUE_VICTIM_REPORT_ID
 
 _READ_S = 0.05
 
@@ -37,12 +49,52 @@ class DirectionCounters:
     overflow: int = 0  # dropped: the radio's buffer was full
     delivered_bytes: int = 0
 
+    @property
+    def dropped(self) -> int:
+        return self.lost + self.overflow
+
+    @property
+    def loss_pct(self) -> float:
+        return 100.0 * self.dropped / self.datagrams if self.datagrams else 0.0
+
+
+@dataclass(frozen=True)
+class SeenReport:
+    """A RESCUE_VICTIM_REPORT the rover sent towards the ground."""
+
+    t_unix_s: float
+    report_seq: int
+    victim_id: int
+    time_usec: int
+    flags: int
+    state: int
+    delivered: bool
+
+
+@dataclass(frozen=True)
+class SeenAck:
+    """A RESCUE_ACK of a victim report the ground sent towards the rover."""
+
+    t_unix_s: float
+    seq: int
+    result: int
+    delivered: bool
+
+
+@dataclass
+class RadioLog:
+    to_ground: DirectionCounters = field(default_factory=DirectionCounters)
+    to_rover: DirectionCounters = field(default_factory=DirectionCounters)
+    reports: list[SeenReport] = field(default_factory=list)
+    acks: list[SeenAck] = field(default_factory=list)
+    actions: int = 0  # RESCUE_OPERATOR_ACTIONs (RESEND after an HQ restart included)
+
 
 class _Direction:
-    """One direction: a serial-rate queue, then the loss draw."""
+    """One direction: a serial-rate queue (when there is a rate), then the loss draw."""
 
     def __init__(
-        self, bytes_per_s: float, loss: float, buffer_bytes: int, rng: random.Random
+        self, bytes_per_s: float | None, loss: float, buffer_bytes: int, rng: random.Random
     ) -> None:
         self.bytes_per_s = bytes_per_s
         self.loss = loss
@@ -55,34 +107,78 @@ class _Direction:
         """The time this datagram has left the radio, or None when dropped."""
         self.counters.datagrams += 1
         self.counters.bytes += size
-        queued_bytes = max(0.0, self.free_at_s - now_s) * self.bytes_per_s
-        if queued_bytes + size > self.buffer_bytes:
-            self.counters.overflow += 1
-            return None
-        self.free_at_s = max(self.free_at_s, now_s) + size / self.bytes_per_s
+        leaves_s = now_s
+        if self.bytes_per_s is not None:
+            queued_bytes = max(0.0, self.free_at_s - now_s) * self.bytes_per_s
+            if queued_bytes + size > self.buffer_bytes:
+                self.counters.overflow += 1
+                return None
+            self.free_at_s = max(self.free_at_s, now_s) + size / self.bytes_per_s
+            leaves_s = self.free_at_s
         if self.rng.random() < self.loss:
             self.counters.lost += 1
             return None
         self.counters.delivered_bytes += size
-        return self.free_at_s
+        return leaves_s
+
+
+class _ReportTap:
+    """Decodes each direction's datagrams and keeps what concerns the reports."""
+
+    def __init__(self) -> None:
+        self.codecs = {True: Codec(255, 0), False: Codec(255, 0)}  # keyed by to_ground
+        self.reports: list[SeenReport] = []
+        self.acks: list[SeenAck] = []
+        self.actions = 0
+
+    def note(self, data: bytes, to_ground: bool, delivered: bool, t_unix_s: float) -> None:
+        codec = self.codecs[to_ground]
+        for msg in codec.feed(data):
+            inner = tunnel.unpack_tunnel(msg, codec) if tunnel.is_ours(msg) else msg
+            if inner is not None:
+                self._keep(inner, t_unix_s, delivered)
+
+    def _keep(self, msg: Any, t_unix_s: float, delivered: bool) -> None:
+        kind = msg.get_type()
+        if kind == "RESCUE_VICTIM_REPORT":
+            self.reports.append(
+                SeenReport(
+                    t_unix_s,
+                    int(msg.report_seq),
+                    int(msg.victim_id),
+                    int(msg.time_usec),
+                    int(msg.flags),
+                    int(msg.state),
+                    delivered,
+                )
+            )
+        elif kind == "RESCUE_ACK" and int(msg.acked_msgid) == RESCUE_VICTIM_REPORT_ID:
+            self.acks.append(SeenAck(t_unix_s, int(msg.seq), int(msg.result), delivered))
+        elif kind == "RESCUE_OPERATOR_ACTION":
+            self.actions += 1
 
 
 class Radio:
-    """A UDP relay with a radio's rate and loss between a rover port and a ground peer."""
+    """See the module docstring. ``close()`` is safe twice."""
 
     def __init__(
         self,
         rover: tuple[str, int],
         *,
-        baud: int = 57_600,
-        loss: float = 0.10,
-        buffer_bytes: int = 4096,
+        loss: float,
         seed: int = 1,
+        baud: int | None = 57_600,
+        buffer_bytes: int = 4096,
+        log_reports: bool = False,
     ) -> None:
+        if not 0.0 <= loss < 1.0:
+            raise ValueError(f"loss = {loss}: must be in [0, 1)")
         rng = random.Random(seed)
+        rate = None if baud is None else baud / 10.0
         self.rover = rover
-        self.up = _Direction(baud / 10.0, loss, buffer_bytes, random.Random(rng.random()))
-        self.down = _Direction(baud / 10.0, loss, buffer_bytes, random.Random(rng.random()))
+        self.to_ground = _Direction(rate, loss, buffer_bytes, random.Random(rng.random()))
+        self.to_rover = _Direction(rate, loss, buffer_bytes, random.Random(rng.random()))
+        self._tap = _ReportTap() if log_reports else None
         self._air = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._air.bind(("127.0.0.1", 0))
         self._ground = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -90,6 +186,7 @@ class Radio:
         self._ground_peer: tuple[str, int] | None = None
         self._due: list[tuple[float, int, socket.socket, bytes, bool]] = []  # heap
         self._n = 0
+        self._lock = threading.Lock()  # the counters and the tap, for snapshot()
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._threads = [
@@ -98,8 +195,13 @@ class Radio:
         ]
 
     @property
+    def port(self) -> int:
+        """The ground side's port: a ground station sends here."""
+        return int(self._ground.getsockname()[1])
+
+    @property
     def ground_url(self) -> str:
-        return f"udpout:127.0.0.1:{self._ground.getsockname()[1]}"
+        return f"udpout:127.0.0.1:{self.port}"
 
     def start(self) -> Radio:
         for t in self._threads:
@@ -122,24 +224,40 @@ class Radio:
         self._air.close()
         self._ground.close()
 
+    def snapshot(self) -> RadioLog:
+        """The counters so far and, with ``log_reports``, what concerned the reports."""
+        with self._lock:
+            tap = self._tap
+            return RadioLog(
+                dataclasses.replace(self.to_ground.counters),
+                dataclasses.replace(self.to_rover.counters),
+                list(tap.reports) if tap else [],
+                list(tap.acks) if tap else [],
+                tap.actions if tap else 0,
+            )
+
     def _read(self) -> None:
         while not self._stop.is_set():
             readable, _, _ = select.select([self._air, self._ground], [], [], _READ_S)
             for sock in readable:
                 try:
                     data, peer = sock.recvfrom(65536)
-                except OSError:
+                except OSError:  # the peer's port refused (not up yet, or closed)
                     continue
                 now = time.monotonic()
-                if sock is self._ground:
-                    self._ground_peer = peer
-                    at = self.down.admit(len(data), now)
-                    out, to_ground = self._air, False
-                else:
-                    at = self.up.admit(len(data), now)
-                    out, to_ground = self._ground, True
+                to_ground = sock is self._air
+                if not to_ground:
+                    self._ground_peer = (str(peer[0]), int(peer[1]))
+                elif self._ground_peer is None:
+                    continue  # no ground station has spoken yet: nobody to hear it
+                with self._lock:
+                    direction = self.to_ground if to_ground else self.to_rover
+                    at = direction.admit(len(data), now)
+                    if self._tap is not None:
+                        self._tap.note(data, to_ground, at is not None, time.time())
                 if at is None:
                     continue
+                out = self._ground if to_ground else self._air
                 with self._cond:
                     self._n += 1
                     heapq.heappush(self._due, (at, self._n, out, data, to_ground))
@@ -160,7 +278,7 @@ class Radio:
                 heapq.heappop(self._due)
             target = self._ground_peer if to_ground else self.rover
             if target is None:
-                continue  # no ground station has spoken yet: nobody to hear it
+                continue
             try:
                 sock.sendto(data, target)
             except OSError:

@@ -1,6 +1,6 @@
 """The chaos mission's tools (the mission itself is `make chaos`: 20 minutes, too long
 for the default run on this machine): its seeded fault schedule, the lossy radio
-relay and the systemd-like supervisor."""
+(scenarios/radio.py without a byte rate) and the systemd-like supervisor."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from scenarios.chaos import SPEED_M_S, chaos_world, patrol_route, plan_faults
-from scenarios.lossyrelay import LossyRelay
+from scenarios.radio import Radio
 from scenarios.supervise import Supervised
 
 
@@ -76,26 +76,26 @@ def _send(sock: socket.socket, to: object, n: int) -> None:
         time.sleep(0.001)  # paced: a burst would overflow loopback's socket buffers
 
 
-def test_relay_loses_its_share_each_way_and_answers_the_latest_hq() -> None:
+def test_radio_loses_its_share_each_way_and_answers_the_latest_hq() -> None:
     rover, hq, hq_again = _udp(), _udp(), _udp()
-    with LossyRelay(rover.getsockname(), loss=0.3, seed=16) as relay:
-        _send(hq, ("127.0.0.1", relay.port), 150)
-        up, relay_side = _drain(rover)  # the rover answers where the relay speaks from
-        _send(rover, relay_side, 150)
+    with Radio(rover.getsockname(), loss=0.3, seed=16, baud=None) as radio:
+        _send(hq, ("127.0.0.1", radio.port), 150)
+        up, radio_side = _drain(rover)  # the rover answers where the radio speaks from
+        _send(rover, radio_side, 150)
         down, _ = _drain(hq)
-        _send(hq_again, ("127.0.0.1", relay.port), 1)  # the HQ restarted on a new port
+        _send(hq_again, ("127.0.0.1", radio.port), 1)  # the HQ restarted on a new port
         restarted, _ = _drain(rover, 0.3)
-        _send(rover, relay_side, 10)
+        _send(rover, radio_side, 10)
         again, _ = _drain(hq_again, 0.3)
-        log = relay.snapshot()
+        log = radio.snapshot()
     for sock in (rover, hq, hq_again):
         sock.close()
     # 150 Bernoulli(0.7) trials (few enough for loopback's socket buffers): sd ~5.6,
     # so +-25 is more than 4 sd.
     assert abs(up - 105) <= 25 and abs(down - 105) <= 25
-    assert (log.up.datagrams, log.down.datagrams) == (151, 160)
-    assert log.up.dropped == 151 - up - restarted
-    assert log.down.dropped == 160 - down - again
+    assert (log.to_rover.datagrams, log.to_ground.datagrams) == (151, 160)
+    assert log.to_rover.dropped == 151 - up - restarted
+    assert log.to_ground.dropped == 160 - down - again
     assert again >= 1  # all 10 lost: 0.3^10
 
 

@@ -56,7 +56,7 @@ def test_both_ways_at_the_line_rate_and_a_full_buffer_drops(
         for i in range(300):  # 30 kB at once: the 4 kB buffer takes about 40
             ground.sendto(bytes([i % 256]) * 100, _port(radio))
         got = _receive(rover, 0.5)
-        down = radio.down.counters
+        down = radio.to_rover.counters
         assert 200 < down.overflow < 270
         assert len(got) == down.datagrams - 1 - down.overflow  # all the others arrive
         assert [d[0] for _, d in got] == sorted(d[0] for _, d in got)  # in order
@@ -74,6 +74,37 @@ def test_seeded_loss_without_overflow_when_paced(
             ground.sendto(b"x" * 100, _port(radio))
             got += _receive(rover, 0.004)  # about 25 kB/s offered, under the line's 57.6 kB/s
         got += _receive(rover, 0.5)
-        assert radio.down.counters.overflow == 0
-        assert radio.down.counters.lost == 400 - len(got)
+        assert radio.to_rover.counters.overflow == 0
+        assert radio.to_rover.counters.lost == 400 - len(got)
         assert 20 <= 400 - len(got) <= 65  # 10 % of 400, seeded
+
+
+def test_the_report_log_sees_reports_in_a_tunnel_and_their_acknowledgements(
+    ends: tuple[socket.socket, socket.socket],
+) -> None:
+    from fusion.types import TrackState, Urgency, VictimReport
+    from mavlink_io import convert, tunnel
+    from mavlink_io.codec import Codec
+
+    rover_sock, ground_sock = ends
+    rover, ground = Codec(7, 191), Codec(255, 190)
+    report = VictimReport(
+        victim_id=3, robot_sysid=7, state=TrackState.CONFIRMED, urgency=Urgency.CRITICAL,
+        visibility_pct=8.0, north_m=1.0, east_m=2.0, down_m=0.0,
+        cov_ne_m2=((0.04, 0.0), (0.0, 0.04)), observations=5,
+        first_seen_unix_s=1.7e9, last_seen_unix_s=1.7e9 + 5,
+    )  # fmt: skip
+    frame = rover.encode(
+        tunnel.wrap(rover, convert.victim_report_to_msg(report, 9, 0, 1.7e9, None))
+    )
+    ack = ground.encode(ground.module.MAVLink_rescue_ack_message(7, 191, 43100, 9, 0))
+    with Radio(rover_sock.getsockname(), loss=0.0, baud=None, log_reports=True) as radio:
+        ground_sock.sendto(ack, _port(radio))  # the ground speaks first
+        assert [d for _, d in _receive(rover_sock, 0.5)] == [ack]
+        rover_sock.sendto(frame, radio._air.getsockname())
+        assert [d for _, d in _receive(ground_sock, 0.5)] == [frame]
+        log = radio.snapshot()
+    (seen,) = log.reports
+    assert (seen.report_seq, seen.victim_id, seen.delivered) == (9, 3, True)
+    assert [(a.seq, a.result, a.delivered) for a in log.acks] == [(9, 0, True)]
+    assert log.to_ground.datagrams == log.to_rover.datagrams == 1
