@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from companion.announcements import Announcement, Announcements, Conditions
+from companion.announcements import Announcer
 from companion.calibration import camera_model
 from companion.config import Config
 from companion.params import Settings
@@ -77,13 +77,6 @@ _SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
 _FIRST_WAIT_NOTE_S = 3.0  # no autopilot this long after start (or a loss): say so
 _WAIT_NOTE_PERIOD_S = 30.0  # ... and again this often while it lasts
 _DISK_FULL_BYTES = 64 * 1024 * 1024  # less free space than this on the state disk is "full"
-# What people are told when a health condition changes: (text, MAV_SEVERITY) when it
-# goes bad, when it is fine again. Severity 5 (NOTICE) or more urgent: QGC speaks it.
-_CONDITION_WORDS = {
-    "camera": (("camera lost", 3), ("camera back", 5)),
-    "hq": (("HQ link lost", 4), ("HQ link back", 5)),
-    "disk": (("disk full", 4), ("disk space free again", 5)),
-}
 
 
 @dataclass(frozen=True)
@@ -199,11 +192,15 @@ class Service:
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
         self.acks: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
-        self.announcements = Announcements()
-        self.conditions = Conditions()
         self.dedupe = Deduplicator()
         self.chunk_ids = statustext.ChunkIds()
         self._wake_reporter = threading.Event()
+        self.announcer = Announcer(
+            enabled=config.reporting.statustext,
+            announce_severity=config.reporting.announce_severity,
+            robot_sysid=self._robot_sysid,
+            wake=self._wake_reporter,
+        )
         self._camera_ok = False
         self.stats = FrameStats()
         self._unsaved: dict[int, Decision] = {}  # by victim: reports not yet on disk
@@ -312,11 +309,11 @@ class Service:
             self._unsaved[d.victim.victim_id] = (
                 d if kept is None else Decision(d.victim, kept.flags | d.flags, False)
             )
-        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
+        sysid = self._robot_sysid()
         origin = self.vehicle.origin
         now = time.time()
         for d in decisions:
-            self._queue_people(d, d.victim.to_report(sysid, self._floor_down_m, origin))
+            self.announcer.victim(d, d.victim.to_report(sysid, self._floor_down_m, origin))
         seq = self._report_seq
         pictures: list[tuple[Candidate, StoredPicture]] = []
         try:
@@ -346,7 +343,7 @@ class Service:
                     exc,
                     len(self._unsaved),
                 )
-                self.announce("Rescue companion: cannot save state, disk full?", 2)
+                self.announcer.announce("Rescue companion: cannot save state, disk full?", 2)
             return
         except BaseException:
             self.outbox.discard()
@@ -368,39 +365,12 @@ class Service:
         if self._store_failing:
             self._store_failing = False
             log.warning("the state database can be written again; %d kept reports saved", saved)
-            self.announce("Rescue companion: state saved again", 5)
+            self.announcer.announce("Rescue companion: state saved again", 5)
         self._wake_reporter.set()
 
-    def _queue_people(self, d: Decision, report: Any) -> None:
-        if d.announce:
-            text = statustext.victim_text(report)
-            severity = statustext.victim_severity(
-                report, d.spoken, self.config.reporting.announce_severity
-            )
-            self._put_announcement(text, severity)
-
-    def announce(self, text: str, severity: int) -> None:
-        """A status line for people, naming this robot (QGC shows it; NOTICE and
-        more urgent are spoken)."""
-        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
-        self._put_announcement(f"{statustext.robot_label(sysid)} {text}", severity)
-
-    def _put_announcement(self, text: str, severity: int) -> None:
-        log.info("announce: %s", text)
-        if not self.config.reporting.statustext:
-            return
-        spoken = severity <= statustext.MAV_SEVERITY_NOTICE
-        self.announcements.put(Announcement(text, severity, spoken))
-        self._wake_reporter.set()
-
-    def _condition(self, name: str, ok: bool) -> None:
-        """A health condition's state; its changes are announced once each."""
-        self._announce_changes(self.conditions.update(name, ok, time.monotonic()))
-
-    def _announce_changes(self, changes: list[tuple[str, bool]]) -> None:
-        for name, ok in changes:
-            text, severity = _CONDITION_WORDS[name][ok]
-            self.announce(text, severity)
+    def _robot_sysid(self) -> int:
+        """This robot's system ID: the vehicle's once heard, else the configured one."""
+        return self.vehicle.sysid or self.config.vehicle.system_id or 1
 
     # -- links ---------------------------------------------------------------------------
 
@@ -468,14 +438,14 @@ class Service:
             except EndOfStream as exc:
                 log.info("camera: %s", exc)
                 self._camera_ok = False
-                self.announce("camera stream ended", 4)
+                self.announcer.announce("camera stream ended", 4)
                 self.stop.wait()
                 return
             except CameraError as exc:
                 log.debug("camera: %s", exc)
                 frame = None
             ok = frame is not None or self.camera.healthy
-            self._condition("camera", ok)
+            self.announcer.condition("camera", ok, time.monotonic())
             self._camera_ok = ok
             if frame is not None:
                 self.mailbox.put(frame)
@@ -617,7 +587,7 @@ class Service:
             for reply in handled.replies:
                 self.vehicle.send(reply)
             if handled.refused:
-                self.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
+                self.announcer.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
 
     def _send_camera(self, msg: MavMessage) -> None:
         """A message from the camera component (the vehicle's system ID, 100)."""
@@ -635,6 +605,7 @@ class Service:
         self.config = config
         self.pipeline.detector.min_score = config.detector.min_score
         self.policy.update_min_interval_s = config.reporting.update_min_interval_s
+        self.announcer.announce_severity = config.reporting.announce_severity
 
     def _save_settings(self, snapshot: dict[str, Any]) -> None:
         self.store.set("params", snapshot)
@@ -675,7 +646,7 @@ class Service:
             if self.outbox.seconds_until_due() != 0.0:  # reports first, always
                 self.picture_sender.poll()
             now = time.monotonic()
-            for a in self.announcements.take(now):
+            for a in self.announcer.take(now):
                 for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
                     self._send_plain(msg)
             connected = self.vehicle.connected
@@ -705,7 +676,7 @@ class Service:
                 next_status - now,
                 self.outbox.seconds_until_due(),
                 self.picture_sender.seconds_until_due(),
-                self.announcements.seconds_until_due(now),
+                self.announcer.seconds_until_due(now),
             ]
             wait = min(w for w in waits if w is not None)
             self._wake_reporter.wait(max(0.01, wait))
@@ -749,23 +720,25 @@ class Service:
         """The HQ link (when there is a direct one; heard within hq_timeout_s, judged
         from hq_timeout_s after start) and the state disk."""
         if self.hq is not None and now - self.started_mono_s >= self.config.hq.hq_timeout_s:
-            self._condition("hq", self.hq.heard_within(self.config.hq.hq_timeout_s))
+            self.announcer.condition(
+                "hq", self.hq.heard_within(self.config.hq.hq_timeout_s), time.monotonic()
+            )
         try:
             free = shutil.disk_usage(self.config.paths.state_dir).free
         except OSError as exc:
             log.debug("free space of %s: %s", self.config.paths.state_dir, exc)
         else:
-            self._condition("disk", free >= _DISK_FULL_BYTES)
-        self._announce_changes(self.conditions.due(now))  # a flapping one settled
+            self.announcer.condition("disk", free >= _DISK_FULL_BYTES, time.monotonic())
+        self.announcer.settle(now)  # a flapping one settled
 
     def _link_changed(self, connected: bool) -> None:
         if connected:
             known = self._counts[0]
-            self.announce(f"companion online, {known} victims known", 5)
+            self.announcer.announce(f"companion online, {known} victims known", 5)
             self.outbox.resend_all_now()
         else:
             # The autopilot cannot hear this; the HQ link (if any) can.
-            self.announce("companion: vehicle link lost", 3)
+            self.announcer.announce("companion: vehicle link lost", 3)
 
     def _log_summary(self) -> None:
         c = self.pipeline.counters
@@ -848,7 +821,7 @@ class Service:
         for t in threads:
             t.start()
         if self._state_problem is not None:
-            self.announce("Rescue companion: saved state unusable, started afresh", 3)
+            self.announcer.announce("Rescue companion: saved state unusable, started afresh", 3)
         if self.video is not None:
             self.video.start()
         self.notifier.ready(
