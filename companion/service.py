@@ -20,7 +20,6 @@ reporter, the one owner of the outbox.
 from __future__ import annotations
 
 import logging
-import math
 import queue
 import shutil
 import statistics
@@ -35,6 +34,8 @@ from typing import Any
 from companion.announcements import Announcer
 from companion.calibration import camera_model
 from companion.config import Config
+from companion.links import Links
+from companion.livevideo import LiveVideo
 from companion.params import Settings
 from companion.pictures import Candidate, PictureChooser, PictureSender
 from companion.pipeline import FrameOutcome, Pipeline
@@ -50,20 +51,16 @@ from companion.sources import (
 )
 from companion.state import load_state
 from companion.store import StoredPicture, StoreError
-from companion.video import Label, VideoStreamer, labels_in_view, shot
+from companion.video import Label, labels_in_view, shot
 from companion.vision import make_detector
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import convert, dialect, picture, statustext
-from mavlink_io.camera import CameraServer, StreamInfo
-from mavlink_io.codec import Codec, MavMessage
-from mavlink_io.hqlink import HqLink
-from mavlink_io.link import ReconnectingLink
+from mavlink_io.codec import MavMessage
 from mavlink_io.linkspec import parse_link
 from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
 from mavlink_io.reliable import Deduplicator, Outbox
 from mavlink_io.signing import Signing, load_signing
 from mavlink_io.tlog import TlogWriter
-from mavlink_io.vehicle import VehicleLink, VehicleSettings
 
 log = logging.getLogger(__name__)
 
@@ -209,44 +206,20 @@ class Service:
         self._count_victims()  # the restored ones, before any thread runs
         self._floor_down_m = config.geolocation.floor_down_m
         self._origin: GlobalOrigin | None = None  # the origin reports were last made with
+        # Made before the links open (it reads the saved outbox); it sends through
+        # them, and only from the reporter thread, which starts after they are open.
         self.outbox = Outbox(
-            self._send_dialect,
+            lambda msg: self.links.send_dialect(msg),
             store=self.store,
             initial_s=config.hq.resend_initial_s,
             max_s=config.hq.resend_max_s,
         )
-        v = config.vehicle
-        self.vehicle = VehicleLink(
-            ReconnectingLink(parse_link(v.url), max_backoff_s=v.reopen_max_backoff_s),
-            VehicleSettings(
-                system_id=v.system_id,
-                component_id=v.component_id,
-                heartbeat_timeout_s=v.heartbeat_timeout_s,
-                heartbeat_period_s=config.reporting.status_period_s,
-                attitude_rate_hz=v.attitude_rate_hz,
-                local_position_rate_hz=v.local_position_rate_hz,
-                global_position_rate_hz=v.global_position_rate_hz,
-                pose_history_s=v.pose_history_s,
-            ),
-            codec=Codec(v.system_id or 1, v.component_id, self.signing),
-            health=self._health,
-            tlog=self.tlog,
-            on_dialect=self._on_dialect,
+        self.links = Links(
+            config, self.signing, self.tlog, health=self._health, on_dialect=self._on_dialect
         )
-        self.hq: HqLink | None = None
-        if config.hq.url:
-            self.hq = HqLink(
-                ReconnectingLink(parse_link(config.hq.url), max_backoff_s=v.reopen_max_backoff_s),
-                Codec(v.system_id or 1, v.component_id, self.signing),
-                self._on_dialect,
-                self.tlog,
-            )
+        self.vehicle, self.hq = self.links.vehicle, self.links.hq
         self.camera = open_camera(config.camera)
-        # The camera is its own component (QGC looks for cameras at 100-105 only),
-        # with its own codec (its own sequence numbers) on the vehicle link.
-        self.camera_codec = Codec(v.system_id or 1, config.video.component_id, self.signing)
-        self.vehicle.other_components = frozenset({config.video.component_id})
-        self.video, self.camera_server = self._video(config)
+        self.video = LiveVideo(config, self.camera_model, self.vehicle, self.signing, self._m)
         self.chooser, self.picture_sender = self._pictures(config)
 
     def _pictures(self, config: Config) -> tuple[PictureChooser, PictureSender]:
@@ -259,7 +232,7 @@ class Service:
             log.warning("evidence pictures of the last run unusable, starting without: %s", exc)
         sender = PictureSender(
             config.pictures,
-            lambda chunk: self._send_dialect(chunk.to_msg(self._m)),
+            lambda chunk: self.links.send_dialect(chunk.to_msg(self._m)),
             self._picture_done,
             signed=self.signing is not None,
         )
@@ -274,21 +247,6 @@ class Service:
             self.store.picture_delivered(victim_id, picture_id)
         except StoreError as exc:  # sent again after a restart; the HQ says STORED at once
             log.warning("delivery of picture %d not saved: %s", picture_id, exc)
-
-    def _video(self, config: Config) -> tuple[VideoStreamer | None, CameraServer | None]:
-        """The live video for QGC and the camera protocol that advertises it, when on
-        and a destination is known ([video] host, else the host of [hq] url)."""
-        v = config.video
-        host = v.host or (parse_link(config.hq.url).host if config.hq.url else "")
-        if not v.enabled or not host:
-            log.info("no video: %s", "[video] enabled = false" if not v.enabled else "no host")
-            return None, None
-        k = self.camera_model.intrinsics
-        hfov_deg = math.degrees(2.0 * math.atan(0.5 * k.width_px / k.fx_px))
-        info = StreamInfo(
-            v.port, v.width_px, v.height_px, v.fps, round(v.bitrate_kbps * 1000), hfov_deg
-        )
-        return VideoStreamer(v, host), CameraServer(v.component_id, info, self._m)
 
     # -- state -------------------------------------------------------------------------
 
@@ -403,19 +361,6 @@ class Service:
                 "operator action queue full; action %d dropped (the HQ resends)", msg.action_seq
             )
 
-    def _send_dialect(self, msg: MavMessage) -> None:
-        if self.hq is not None:
-            if self.vehicle.sysid:
-                self.hq.codec.src_system = self.vehicle.sysid
-            self.hq.send(msg)
-        if self.config.hq.tunnel:
-            self.vehicle.send_tunnel(msg)
-
-    def _send_plain(self, msg: MavMessage) -> None:
-        self.vehicle.send(msg)
-        if self.hq is not None:
-            self.hq.send(msg)
-
     # -- threads -----------------------------------------------------------------------
 
     def _guard(self, name: str, body: Callable[[], None]) -> Callable[[], None]:
@@ -506,14 +451,15 @@ class Service:
         )
 
     def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
-        if self.video is None:
+        streamer = self.video.streamer
+        if streamer is None:
             return
         labels: tuple[Label, ...] = ()
         if outcome.pose is not None:
             labels = labels_in_view(
                 self.camera_model, outcome.pose, self.tracker.victims(), self._floor_down_m
             )
-        self.video.offer(shot(frame.image, outcome.detections, labels))
+        streamer.offer(shot(frame.image, outcome.detections, labels))
 
     def _check_origin(self) -> None:
         """Victims reported before the EKF origin was known (or under another origin)
@@ -567,7 +513,7 @@ class Service:
                 msg.action_seq,
                 result,
             )
-            self._send_dialect(ack)
+            self.links.send_dialect(ack)
 
     def _handle_ground_requests(self) -> None:
         """Answer parameter and camera requests (processing thread: it owns the
@@ -577,10 +523,7 @@ class Service:
                 msg = self.ground_requests.get_nowait()
             except queue.Empty:
                 return
-            if self.camera_server is not None:
-                pose = self.vehicle.poses.latest()
-                for reply in self.camera_server.handle(msg, pose.t_boot_s if pose else 0.0) or []:
-                    self._send_camera(reply)
+            self.video.handle(msg)
             handled = self.param_server.handle(msg)
             if handled is None:
                 continue
@@ -589,19 +532,8 @@ class Service:
             if handled.refused:
                 self.announcer.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
 
-    def _send_camera(self, msg: MavMessage) -> None:
-        """A message from the camera component (the vehicle's system ID, 100)."""
-        if self.vehicle.sysid:
-            self.camera_codec.src_system = self.vehicle.sysid
-        self.vehicle.send_encoded(self.camera_codec.encode(msg))
-
     def _apply_settings(self, config: Config) -> None:
-        if config.video != self.config.video:  # on/off or bit rate: a new stream
-            if self.video is not None:
-                self.video.close()
-            self.video, self.camera_server = self._video(config)
-            if self.video is not None:
-                self.video.start()
+        self.video.apply(config)
         self.config = config
         self.pipeline.detector.min_score = config.detector.min_score
         self.policy.update_min_interval_s = config.reporting.update_min_interval_s
@@ -648,7 +580,7 @@ class Service:
             now = time.monotonic()
             for a in self.announcer.take(now):
                 for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
-                    self._send_plain(msg)
+                    self.links.send_plain(msg)
             connected = self.vehicle.connected
             if connected != was_connected:
                 self._link_changed(connected)
@@ -662,13 +594,7 @@ class Service:
                 next_status = now + period
                 self._send_status(now)
                 self._check_health(now)
-                if self.camera_server is not None:  # the camera's own heartbeat: QGC finds it
-                    m = self._m
-                    self._send_camera(
-                        m.MAVLink_heartbeat_message(
-                            m.MAV_TYPE_CAMERA, m.MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE, 3
-                        )
-                    )
+                self.video.heartbeat()  # the camera's own heartbeat: QGC finds it
             if now >= next_summary:
                 next_summary = now + _SUMMARY_PERIOD_S
                 self._log_summary()
@@ -781,7 +707,7 @@ class Service:
             flags |= m.RESCUE_STATUS_FLAGS_SIGNING
         confirmed, tentative = self._counts
         pending = self.outbox.pending_count
-        self._send_dialect(
+        self.links.send_dialect(
             m.MAVLink_rescue_status_message(
                 int(now - self.started_mono_s),
                 fps,
@@ -822,8 +748,7 @@ class Service:
             t.start()
         if self._state_problem is not None:
             self.announcer.announce("Rescue companion: saved state unusable, started afresh", 3)
-        if self.video is not None:
-            self.video.start()
+        self.video.start()
         self.notifier.ready(
             f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
         )
@@ -864,10 +789,7 @@ class Service:
                 sorted(self._unsaved),
             )
         self.camera.close()
-        if self.video is not None:
-            self.video.close()
-        if self.hq is not None:
-            self.hq.close()
-        self.vehicle.close()
+        self.video.close()
+        self.links.close()
         self.tlog.close()
         self.store.close()
