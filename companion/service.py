@@ -26,18 +26,20 @@ import statistics
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from companion import pictures
 from companion.announcements import Announcer
 from companion.calibration import camera_model
 from companion.config import Config
+from companion.ledger import Ledger
 from companion.links import Links
 from companion.livevideo import LiveVideo
 from companion.params import Settings
-from companion.pictures import Candidate, PictureChooser, PictureSender
+from companion.pictures import Candidate
 from companion.pipeline import FrameOutcome, Pipeline
 from companion.reporting import Decision, ReportPolicy
 from companion.sdnotify import Notifier, watchdog_period_s
@@ -50,11 +52,10 @@ from companion.sources import (
     write_frame,
 )
 from companion.state import load_state
-from companion.store import StoredPicture, StoreError
 from companion.video import Label, labels_in_view, shot
 from companion.vision import make_detector
 from fusion.types import GlobalOrigin, TrackState
-from mavlink_io import convert, dialect, picture, statustext
+from mavlink_io import dialect, picture, statustext
 from mavlink_io.codec import MavMessage
 from mavlink_io.linkspec import parse_link
 from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
@@ -161,7 +162,7 @@ class Service:
             rep.move_threshold_sigma, rep.move_min_m, rep.update_min_interval_s
         )
         state = load_state(config.paths.state_dir, config.tracker, self.policy)
-        self.store, self.tracker, self._report_seq = state.store, state.tracker, state.report_seq
+        self.store, self.tracker = state.store, state.tracker
         self._state_problem = state.problem  # announced once the threads run
         # Parameters set from the ground override the config file's values (companion/params.py).
         self.settings = Settings(
@@ -200,11 +201,8 @@ class Service:
         )
         self._camera_ok = False
         self.stats = FrameStats()
-        self._unsaved: dict[int, Decision] = {}  # by victim: reports not yet on disk
-        self._store_failing = False
         self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
         self._count_victims()  # the restored ones, before any thread runs
-        self._floor_down_m = config.geolocation.floor_down_m
         self._origin: GlobalOrigin | None = None  # the origin reports were last made with
         # Made before the links open (it reads the saved outbox); it sends through
         # them, and only from the reporter thread, which starts after they are open.
@@ -220,111 +218,27 @@ class Service:
         self.vehicle, self.hq = self.links.vehicle, self.links.hq
         self.camera = open_camera(config.camera)
         self.video = LiveVideo(config, self.camera_model, self.vehicle, self.signing, self._m)
-        self.chooser, self.picture_sender = self._pictures(config)
-
-    def _pictures(self, config: Config) -> tuple[PictureChooser, PictureSender]:
-        """The evidence pictures: those kept before a restart are known (not chosen
-        again unless clearly better), and those the HQ does not have are sent."""
-        kept: list[StoredPicture] = []
-        try:
-            kept = self.store.pictures()
-        except StoreError as exc:
-            log.warning("evidence pictures of the last run unusable, starting without: %s", exc)
-        sender = PictureSender(
+        self.chooser, self.picture_sender = pictures.resume(
             config.pictures,
+            self.store,
             lambda chunk: self.links.send_dialect(chunk.to_msg(self._m)),
-            self._picture_done,
             signed=self.signing is not None,
         )
-        for p in kept:
-            if config.pictures.enabled and not p.delivered:
-                sender.offer(p)
-        return PictureChooser(config.pictures, kept), sender
-
-    def _picture_done(self, victim_id: int, picture_id: int, _result: int) -> None:
-        """Reporter thread: the HQ has the picture (or refused it): never resend it."""
-        try:
-            self.store.picture_delivered(victim_id, picture_id)
-        except StoreError as exc:  # sent again after a restart; the HQ says STORED at once
-            log.warning("delivery of picture %d not saved: %s", picture_id, exc)
-
-    # -- state -------------------------------------------------------------------------
-
-    def _commit(self, decisions: list[Decision], candidates: Sequence[Candidate] = ()) -> None:
-        """Persist the tracker, the policy, the new reports and the new evidence
-        pictures in one transaction. A picture takes its number from the report
-        sequence (never reused, increasing); one not saved is forgotten (a later
-        frame gives another).
-
-        When the database cannot be written (a full disk: recorded frames share it),
-        the reports wait in memory (one per victim, the newest, its flags merged) and
-        go into the next commit, the periodic save included; nothing unsaved is sent.
-        The failure and the recovery are each said once, loudly. People hear about a
-        victim at once, whatever the disk.
-        """
-        for d in decisions:
-            kept = self._unsaved.get(d.victim.victim_id)
-            self._unsaved[d.victim.victim_id] = (
-                d if kept is None else Decision(d.victim, kept.flags | d.flags, False)
-            )
-        sysid = self._robot_sysid()
-        origin = self.vehicle.origin
-        now = time.time()
-        for d in decisions:
-            self.announcer.victim(d, d.victim.to_report(sysid, self._floor_down_m, origin))
-        seq = self._report_seq
-        pictures: list[tuple[Candidate, StoredPicture]] = []
-        try:
-            with self.store.transaction():
-                for d in self._unsaved.values():
-                    seq += 1
-                    report = d.victim.to_report(sysid, self._floor_down_m, origin)
-                    msg = convert.victim_report_to_msg(
-                        report, seq, d.flags, now, d.victim.merged_into, self._m
-                    )
-                    self.outbox.stage(msg)  # in this transaction; scheduled after it
-                for c in candidates:
-                    seq += 1
-                    p = StoredPicture(c.victim_id, seq, c.score, c.taken_unix_s, c.jpeg)
-                    self.store.put_picture(p)
-                    pictures.append((c, p))
-                self.store.set("tracker", self.tracker.snapshot())
-                self.store.set("reported", self.policy.snapshot())
-                self.store.set("report_seq", seq)
-        except StoreError as exc:
-            self.outbox.discard()
-            if not self._store_failing:
-                self._store_failing = True
-                log.error(
-                    "cannot save: %s. The disk may be full; victims and %d reports are kept "
-                    "in memory and saved (then sent) when it can be written again",
-                    exc,
-                    len(self._unsaved),
-                )
-                self.announcer.announce("Rescue companion: cannot save state, disk full?", 2)
-            return
-        except BaseException:
-            self.outbox.discard()
-            raise
-        self._report_seq = seq
-        saved = len(self._unsaved)
-        self._unsaved.clear()
-        self.outbox.publish()  # committed: now the reporter may send them
-        for c, p in pictures:
-            self.chooser.keep(c)
-            self.picture_sender.offer(p)
-            log.info(
-                "picture %d of victim %d: %d bytes, score %.3f",
-                p.picture_id,
-                p.victim_id,
-                len(p.jpeg),
-                p.score,
-            )
-        if self._store_failing:
-            self._store_failing = False
-            log.warning("the state database can be written again; %d kept reports saved", saved)
-            self.announcer.announce("Rescue companion: state saved again", 5)
-        self._wake_reporter.set()
+        self.ledger = Ledger(
+            store=self.store,
+            tracker=self.tracker,
+            policy=self.policy,
+            outbox=self.outbox,
+            chooser=self.chooser,
+            picture_sender=self.picture_sender,
+            announcer=self.announcer,
+            vehicle=self.vehicle,
+            robot_sysid=self._robot_sysid,
+            report_seq=state.report_seq,
+            floor_down_m=config.geolocation.floor_down_m,
+            wake_reporter=self._wake_reporter,
+            m=self._m,
+        )
 
     def _robot_sysid(self) -> int:
         """This robot's system ID: the vehicle's once heard, else the configured one."""
@@ -434,7 +348,7 @@ class Service:
                     or (outcome.events and time.monotonic() - last_save > 0.5)
                     or (time.monotonic() - last_save > _SAVE_PERIOD_S)
                 ):
-                    self._commit(outcome.decisions, candidates)
+                    self.ledger.commit(outcome.decisions, candidates)
                     last_save = time.monotonic()
                 if self.faults.processing_delay_s:
                     self.stop.wait(self.faults.processing_delay_s)
@@ -457,7 +371,7 @@ class Service:
         labels: tuple[Label, ...] = ()
         if outcome.pose is not None:
             labels = labels_in_view(
-                self.camera_model, outcome.pose, self.tracker.victims(), self._floor_down_m
+                self.camera_model, outcome.pose, self.tracker.victims(), self.ledger.floor_down_m
             )
         streamer.offer(shot(frame.image, outcome.detections, labels))
 
@@ -471,12 +385,12 @@ class Service:
         decisions = self.policy.requested(self.tracker.victims(), time.time(), flags=0)
         if decisions:
             log.info("EKF origin known: reporting %d victims again with lat/lon", len(decisions))
-            self._commit(decisions)
+            self.ledger.commit(decisions)
 
     def _after_frame(self, outcome: FrameOutcome) -> None:
         vision_ms = None
         if outcome.pose is not None:
-            self._floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
+            self.ledger.floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
             vision_ms = outcome.vision_ms
         self.stats.add(time.monotonic(), vision_ms)
         self._count_victims()
@@ -505,7 +419,7 @@ class Service:
                 if decisions is None:
                     result = m.RESCUE_ACK_RESULT_REJECTED
                 else:
-                    self._commit(decisions)
+                    self.ledger.commit(decisions)
             ack = m.MAVLink_rescue_ack_message(
                 msg.get_srcSystem(),
                 msg.get_srcComponent(),
@@ -778,15 +692,15 @@ class Service:
             self._apply_acks()  # heard before the stop: do not resend them after a restart
             # The reports a full disk kept in memory go into this last commit with the
             # policy that counts them as reported, else a restart would never send them.
-            self._commit([])
+            self.ledger.commit([])
         except Exception:
             log.exception("saving the victim registry at shutdown failed")
-        if self._unsaved:
+        if unsaved := self.ledger.unsaved_victims:
             log.error(
                 "stopping with the disk still full: %d victims' reports (IDs %s) are not "
                 "saved and will not be sent",
-                len(self._unsaved),
-                sorted(self._unsaved),
+                len(unsaved),
+                unsaved,
             )
         self.camera.close()
         self.video.close()
