@@ -35,13 +35,14 @@ from companion import pictures
 from companion.announcements import Announcer
 from companion.calibration import camera_model
 from companion.config import Config
+from companion.ground import Ground
 from companion.ledger import Ledger
 from companion.links import Links
 from companion.livevideo import LiveVideo
 from companion.params import Settings
 from companion.pictures import Candidate
 from companion.pipeline import FrameOutcome, Pipeline
-from companion.reporting import Decision, ReportPolicy
+from companion.reporting import ReportPolicy
 from companion.sdnotify import Notifier, watchdog_period_s
 from companion.sources import (
     CameraError,
@@ -59,7 +60,7 @@ from mavlink_io import dialect, picture, statustext
 from mavlink_io.codec import MavMessage
 from mavlink_io.linkspec import parse_link
 from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
-from mavlink_io.reliable import Deduplicator, Outbox
+from mavlink_io.reliable import Outbox
 from mavlink_io.signing import Signing, load_signing
 from mavlink_io.tlog import TlogWriter
 
@@ -190,7 +191,6 @@ class Service:
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
         self.acks: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
-        self.dedupe = Deduplicator()
         self.chunk_ids = statustext.ChunkIds()
         self._wake_reporter = threading.Event()
         self.announcer = Announcer(
@@ -237,6 +237,19 @@ class Service:
             report_seq=state.report_seq,
             floor_down_m=config.geolocation.floor_down_m,
             wake_reporter=self._wake_reporter,
+            m=self._m,
+        )
+        self.ground = Ground(
+            actions=self.actions,
+            requests=self.ground_requests,
+            tracker=self.tracker,
+            policy=self.policy,
+            ledger=self.ledger,
+            param_server=self.param_server,
+            video=self.video,
+            vehicle=self.vehicle,
+            links=self.links,
+            announcer=self.announcer,
             m=self._m,
         )
 
@@ -330,8 +343,8 @@ class Service:
                 log.warning("fault injection: the processing loop stalls now")
                 self.stop.wait()
                 return
-            self._handle_actions()
-            self._handle_ground_requests()
+            self.ground.handle_actions()
+            self.ground.handle_requests()
             self._check_origin()
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
@@ -404,48 +417,6 @@ class Service:
         )
         self._counts = (confirmed, sum(1 for v in victims if v.state == TrackState.TENTATIVE))
 
-    def _handle_actions(self) -> None:
-        m = self._m
-        while True:
-            try:
-                msg = self.actions.get_nowait()
-            except queue.Empty:
-                return
-            result = m.RESCUE_ACK_RESULT_ACCEPTED
-            if self.dedupe.check(msg):
-                result = m.RESCUE_ACK_RESULT_DUPLICATE
-            else:
-                decisions = self._apply_action(msg)
-                if decisions is None:
-                    result = m.RESCUE_ACK_RESULT_REJECTED
-                else:
-                    self.ledger.commit(decisions)
-            ack = m.MAVLink_rescue_ack_message(
-                msg.get_srcSystem(),
-                msg.get_srcComponent(),
-                dialect.RESCUE_OPERATOR_ACTION_ID,
-                msg.action_seq,
-                result,
-            )
-            self.links.send_dialect(ack)
-
-    def _handle_ground_requests(self) -> None:
-        """Answer parameter and camera requests (processing thread: it owns the
-        detector, the policy and the store)."""
-        while True:
-            try:
-                msg = self.ground_requests.get_nowait()
-            except queue.Empty:
-                return
-            self.video.handle(msg)
-            handled = self.param_server.handle(msg)
-            if handled is None:
-                continue
-            for reply in handled.replies:
-                self.vehicle.send(reply)
-            if handled.refused:
-                self.announcer.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
-
     def _apply_settings(self, config: Config) -> None:
         self.video.apply(config)
         self.config = config
@@ -455,30 +426,6 @@ class Service:
 
     def _save_settings(self, snapshot: dict[str, Any]) -> None:
         self.store.set("params", snapshot)
-
-    def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
-        """The reports an operator action causes; None if it cannot be applied."""
-        m = self._m
-        now = time.time()
-        if msg.action == m.RESCUE_OPERATOR_ACTION_RESEND:
-            wanted = [v for v in self.tracker.victims() if msg.victim_id in (0, v.victim_id)]
-            return self.policy.requested(wanted, now)
-        states = {
-            m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
-            m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
-            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
-        }
-        state = states.get(msg.action)
-        if state is None:
-            log.warning("operator action %d: unknown action %d", msg.action_seq, msg.action)
-            return None
-        try:
-            event = self.tracker.mark(msg.victim_id, state, now)
-        except (KeyError, ValueError) as exc:
-            log.warning("operator action %d: %s", msg.action_seq, exc)
-            return None
-        log.info("operator marked victim %d %s", msg.victim_id, state.name)
-        return self.policy.decide([event], self.tracker.victims(), now)
 
     def _reporter_loop(self) -> None:
         period = self.config.reporting.status_period_s
