@@ -22,40 +22,31 @@ from __future__ import annotations
 import logging
 import queue
 import shutil
-import statistics
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from companion import pictures
 from companion.announcements import Announcer
 from companion.calibration import camera_model
+from companion.capture import Capture, FrameMailbox, recording_dir
 from companion.config import Config
 from companion.ground import Ground
 from companion.ledger import Ledger
 from companion.links import Links
 from companion.livevideo import LiveVideo
 from companion.params import Settings
-from companion.pictures import Candidate
-from companion.pipeline import FrameOutcome, Pipeline
+from companion.pipeline import Pipeline
+from companion.processing import FaultInjection, FrameStats, Processing
 from companion.reporting import ReportPolicy
-from companion.sdnotify import Notifier, watchdog_period_s
+from companion.sdnotify import Notifier
 from companion.sources import (
-    CameraError,
-    CameraTimeout,
-    EndOfStream,
-    Frame,
     open_camera,
-    write_frame,
 )
 from companion.state import load_state
-from companion.video import Label, labels_in_view, shot
 from companion.vision import make_detector
-from fusion.types import GlobalOrigin, TrackState
 from mavlink_io import dialect, picture, statustext
 from mavlink_io.codec import MavMessage
 from mavlink_io.linkspec import parse_link
@@ -69,74 +60,11 @@ log = logging.getLogger(__name__)
 MAV_STATE_STANDBY = 3
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
-_SAVE_PERIOD_S = 5.0  # the tracker is saved at least this often while frames flow
-_MAILBOX_WAIT_S = 0.25
 _STOP_POLL_S = 0.1  # how often the main thread looks for a stop signal
 _SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
 _FIRST_WAIT_NOTE_S = 3.0  # no autopilot this long after start (or a loss): say so
 _WAIT_NOTE_PERIOD_S = 30.0  # ... and again this often while it lasts
 _DISK_FULL_BYTES = 64 * 1024 * 1024  # less free space than this on the state disk is "full"
-
-
-@dataclass(frozen=True)
-class FaultInjection:
-    """Testing aids for the service tests (CLI --debug-* flags); off by default."""
-
-    processing_delay_s: float = 0.0  # extra time per frame: processing falls behind
-    stall_after_s: float | None = None  # the processing loop hangs after this long
-
-
-class FrameMailbox:
-    """One frame slot between the camera and processing threads."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._frame: Frame | None = None
-        self.received = 0
-        self.dropped = 0
-
-    def put(self, frame: Frame) -> None:
-        with self._cond:
-            if self._frame is not None:
-                self.dropped += 1
-            self._frame = frame
-            self.received += 1
-            self._cond.notify()
-
-    def get(self, timeout_s: float) -> Frame:
-        """The newest frame; CameraTimeout when none arrives in time."""
-        with self._cond:
-            if self._frame is None and not self._cond.wait_for(
-                lambda: self._frame is not None, timeout_s
-            ):
-                raise CameraTimeout(f"no frame within {timeout_s} s")
-            frame, self._frame = self._frame, None
-            assert frame is not None  # wait_for guarantees it
-            return frame
-
-
-class FrameStats:
-    """Processed-frame times and vision durations: written by processing, read by
-    the reporter, so every access holds the lock (iterating a deque that another
-    thread appends to raises "deque mutated during iteration")."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._vision_ms: deque[float] = deque(maxlen=50)
-        self._processed: deque[float] = deque(maxlen=100)  # monotonic times
-
-    def add(self, t_mono_s: float, vision_ms: float | None) -> None:
-        with self._lock:
-            self._processed.append(t_mono_s)
-            if vision_ms is not None:
-                self._vision_ms.append(vision_ms)
-
-    def summary(self, now_mono_s: float, window_s: float = 5.0) -> tuple[float, float]:
-        """(frames per second over the last ``window_s``, median vision ms)."""
-        with self._lock:
-            recent = sum(1 for t in self._processed if now_mono_s - t <= window_s)
-            vision_ms = statistics.median(self._vision_ms) if self._vision_ms else 0.0
-        return recent / window_s, vision_ms
 
 
 class Service:
@@ -147,7 +75,7 @@ class Service:
     ) -> None:
         self.config = config
         self.notifier = notifier
-        self.faults = faults or FaultInjection()
+        faults = faults or FaultInjection()
         self.stop = threading.Event()
         self.started_mono_s = time.monotonic()
         self.failure: str | None = None
@@ -178,16 +106,7 @@ class Service:
             config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
         )
         self.tlog = TlogWriter(config.paths.tlogs, int(config.paths.tlog_max_mb * 1e6))
-        self.frames_dir: Path | None = None
-        if config.paths.record_frames:
-            self.frames_dir = config.paths.state_dir / "frames" / time.strftime("%Y%m%d-%H%M%S")
-            try:
-                self.frames_dir.mkdir(parents=True, exist_ok=True)
-            except OSError as exc:
-                log.warning(
-                    "not recording frames: cannot create %s: %s", self.frames_dir, exc.strerror
-                )
-                self.frames_dir = None
+        frames_dir = recording_dir(config)
         self.mailbox = FrameMailbox()
         self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
         self.acks: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
@@ -199,11 +118,8 @@ class Service:
             robot_sysid=self._robot_sysid,
             wake=self._wake_reporter,
         )
-        self._camera_ok = False
+        self.camera_ok = threading.Event()  # set by the camera thread while frames come
         self.stats = FrameStats()
-        self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
-        self._count_victims()  # the restored ones, before any thread runs
-        self._origin: GlobalOrigin | None = None  # the origin reports were last made with
         # Made before the links open (it reads the saved outbox); it sends through
         # them, and only from the reporter thread, which starts after they are open.
         self.outbox = Outbox(
@@ -216,7 +132,14 @@ class Service:
             config, self.signing, self.tlog, health=self._health, on_dialect=self._on_dialect
         )
         self.vehicle, self.hq = self.links.vehicle, self.links.hq
-        self.camera = open_camera(config.camera)
+        self.capture = Capture(
+            camera=open_camera(config.camera),
+            mailbox=self.mailbox,
+            frames_dir=frames_dir,
+            camera_ok=self.camera_ok,
+            announcer=self.announcer,
+            stop=self.stop,
+        )
         self.video = LiveVideo(config, self.camera_model, self.vehicle, self.signing, self._m)
         self.chooser, self.picture_sender = pictures.resume(
             config.pictures,
@@ -239,7 +162,7 @@ class Service:
             wake_reporter=self._wake_reporter,
             m=self._m,
         )
-        self.ground = Ground(
+        ground = Ground(
             actions=self.actions,
             requests=self.ground_requests,
             tracker=self.tracker,
@@ -252,6 +175,21 @@ class Service:
             announcer=self.announcer,
             m=self._m,
         )
+        self.processing = Processing(
+            config=config,
+            pipeline=self.pipeline,
+            mailbox=self.mailbox,
+            stats=self.stats,
+            vehicle=self.vehicle,
+            ground=ground,
+            ledger=self.ledger,
+            chooser=self.chooser,
+            video=self.video,
+            notifier=notifier,
+            faults=faults,
+            started_mono_s=self.started_mono_s,
+            stop=self.stop,
+        )
 
     def _robot_sysid(self) -> int:
         """This robot's system ID: the vehicle's once heard, else the configured one."""
@@ -260,7 +198,7 @@ class Service:
     # -- links ---------------------------------------------------------------------------
 
     def _health(self) -> int:
-        if not self._camera_ok:
+        if not self.camera_ok.is_set():
             return MAV_STATE_CRITICAL
         return MAV_STATE_ACTIVE if self.vehicle.poses.latest() is not None else MAV_STATE_STANDBY
 
@@ -300,122 +238,6 @@ class Service:
                 self.stop.set()
 
         return run
-
-    def _camera_loop(self) -> None:
-        while not self.stop.is_set():
-            try:
-                frame = self.camera.read(timeout_s=0.5)
-            except CameraTimeout:
-                frame = None
-            except EndOfStream as exc:
-                log.info("camera: %s", exc)
-                self._camera_ok = False
-                self.announcer.announce("camera stream ended", 4)
-                self.stop.wait()
-                return
-            except CameraError as exc:
-                log.debug("camera: %s", exc)
-                frame = None
-            ok = frame is not None or self.camera.healthy
-            self.announcer.condition("camera", ok, time.monotonic())
-            self._camera_ok = ok
-            if frame is not None:
-                self.mailbox.put(frame)
-                self._record_frame(frame)
-
-    def _record_frame(self, frame: Frame) -> None:
-        """Save the frame for replay; a full disk stops the recording, not the camera."""
-        if self.frames_dir is None:
-            return
-        try:
-            write_frame(self.frames_dir, frame)
-        except CameraError as exc:
-            log.warning("frame recording stopped: %s", exc)
-            self.frames_dir = None
-
-    def _processing_loop(self) -> None:
-        watchdog_s = watchdog_period_s()
-        next_ping = 0.0
-        last_save = time.monotonic()
-        while not self.stop.is_set():
-            stall = self.faults.stall_after_s
-            if stall is not None and time.monotonic() - self.started_mono_s > stall:
-                log.warning("fault injection: the processing loop stalls now")
-                self.stop.wait()
-                return
-            self.ground.handle_actions()
-            self.ground.handle_requests()
-            self._check_origin()
-            try:
-                frame = self.mailbox.get(_MAILBOX_WAIT_S)
-            except CameraTimeout:
-                frame = None
-            if frame is not None:
-                outcome = self.pipeline.process(frame, self.vehicle.poses)
-                self._after_frame(outcome)
-                self._offer_video(frame, outcome)
-                candidates = self._choose_pictures(frame, outcome)
-                if (
-                    outcome.decisions
-                    or candidates
-                    or (outcome.events and time.monotonic() - last_save > 0.5)
-                    or (time.monotonic() - last_save > _SAVE_PERIOD_S)
-                ):
-                    self.ledger.commit(outcome.decisions, candidates)
-                    last_save = time.monotonic()
-                if self.faults.processing_delay_s:
-                    self.stop.wait(self.faults.processing_delay_s)
-            now = time.monotonic()
-            if watchdog_s is not None and now >= next_ping:
-                self.notifier.watchdog()
-                next_ping = now + watchdog_s
-
-    def _choose_pictures(self, frame: Frame, outcome: FrameOutcome) -> list[Candidate]:
-        if not (self.config.pictures.enabled and outcome.located):
-            return []
-        return self.chooser.consider(
-            frame.image, outcome.located, self.tracker.victims(), frame.t_unix_s
-        )
-
-    def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
-        streamer = self.video.streamer
-        if streamer is None:
-            return
-        labels: tuple[Label, ...] = ()
-        if outcome.pose is not None:
-            labels = labels_in_view(
-                self.camera_model, outcome.pose, self.tracker.victims(), self.ledger.floor_down_m
-            )
-        streamer.offer(shot(frame.image, outcome.detections, labels))
-
-    def _check_origin(self) -> None:
-        """Victims reported before the EKF origin was known (or under another origin)
-        are reported again, now with latitude, longitude and a map marker."""
-        origin = self.vehicle.origin
-        if origin is None or origin == self._origin:
-            return
-        self._origin = origin
-        decisions = self.policy.requested(self.tracker.victims(), time.time(), flags=0)
-        if decisions:
-            log.info("EKF origin known: reporting %d victims again with lat/lon", len(decisions))
-            self.ledger.commit(decisions)
-
-    def _after_frame(self, outcome: FrameOutcome) -> None:
-        vision_ms = None
-        if outcome.pose is not None:
-            self.ledger.floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
-            vision_ms = outcome.vision_ms
-        self.stats.add(time.monotonic(), vision_ms)
-        self._count_victims()
-
-    def _count_victims(self) -> None:
-        """Publish the victim counts for the reporter, which must not touch the tracker
-        (it is the processing thread's: iterating it there can see it change)."""
-        victims = self.tracker.victims(include_tentative=True)
-        confirmed = sum(
-            1 for v in victims if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
-        )
-        self._counts = (confirmed, sum(1 for v in victims if v.state == TrackState.TENTATIVE))
 
     def _apply_settings(self, config: Config) -> None:
         self.video.apply(config)
@@ -520,7 +342,7 @@ class Service:
 
     def _link_changed(self, connected: bool) -> None:
         if connected:
-            known = self._counts[0]
+            known = self.processing.counts[0]
             self.announcer.announce(f"companion online, {known} victims known", 5)
             self.outbox.resend_all_now()
         else:
@@ -528,7 +350,7 @@ class Service:
             self.announcer.announce("companion: vehicle link lost", 3)
 
     def _log_summary(self) -> None:
-        c = self.pipeline.counters
+        c = self.processing.counters
         counts = Counter(dict(c.rejected))  # one C-level copy: processing adds keys meanwhile
         rejected = ", ".join(f"{k}: {n}" for k, n in counts.most_common(3)) or "none"
         log.info(
@@ -541,7 +363,7 @@ class Service:
             c.detections,
             c.observations,
             rejected,
-            self._counts[0],
+            self.processing.counts[0],
             self.outbox.pending_count,
             self.picture_sender.counters.delivered,
             self.picture_sender.pending,
@@ -554,7 +376,8 @@ class Service:
         flags = 0
         if self.vehicle.connected:
             flags |= m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
-        if self._camera_ok:
+        camera_ok = self.camera_ok.is_set()
+        if camera_ok:
             flags |= m.RESCUE_STATUS_FLAGS_CAMERA
         if self.hq is not None and self.hq.heard_within(self.config.hq.hq_timeout_s):
             flags |= m.RESCUE_STATUS_FLAGS_HQ_LINK
@@ -566,7 +389,7 @@ class Service:
             flags |= m.RESCUE_STATUS_FLAGS_RECORDING
         if self.signing is not None:
             flags |= m.RESCUE_STATUS_FLAGS_SIGNING
-        confirmed, tentative = self._counts
+        confirmed, tentative = self.processing.counts
         pending = self.outbox.pending_count
         self.links.send_dialect(
             m.MAVLink_rescue_status_message(
@@ -585,7 +408,7 @@ class Service:
             if self.vehicle.connected
             else f"waiting for the autopilot on {self.config.vehicle.url}"
         )
-        camera = "ok" if self._camera_ok else "lost"
+        camera = "ok" if camera_ok else "lost"
         self.notifier.status(
             f"{link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
             f"{confirmed} victims, {pending} unacknowledged"
@@ -600,8 +423,8 @@ class Service:
         threads = [
             threading.Thread(target=self._guard(n, f), name=n, daemon=True)
             for n, f in (
-                ("camera", self._camera_loop),
-                ("processing", self._processing_loop),
+                ("camera", self.capture.run),
+                ("processing", self.processing.run),
                 ("reporter", self._reporter_loop),
             )
         ]
@@ -649,7 +472,7 @@ class Service:
                 len(unsaved),
                 unsaved,
             )
-        self.camera.close()
+        self.capture.camera.close()
         self.video.close()
         self.links.close()
         self.tlog.close()

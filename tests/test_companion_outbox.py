@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from companion.config import config_from_dict
+from companion.processing import FrameStats
 from companion.sdnotify import Notifier
-from companion.service import FrameStats, Service
+from companion.service import Service
 from companion.store import Store, StoreError
 from fusion.types import TrackState, Urgency, VictimReport
 from mavlink_io import convert, dialect
