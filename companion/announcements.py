@@ -1,7 +1,9 @@
 """What people hear, and how often: the rate limit and the robot's own conditions.
 
-Pure logic on a caller-given monotonic time; thread-safe (the processing, camera
-and reporter threads all announce, the reporter sends).
+``Announcer`` is what the threads call (the processing, camera and reporter threads
+all announce, the reporter sends): it words a line, queues it and wakes the
+reporter. ``Announcements`` and ``Conditions`` under it are pure logic on a
+caller-given monotonic time. All three are thread-safe.
 
 ``Announcements`` is a token bucket over STATUSTEXT announcements: ``burst`` go out
 at once, then one every ``interval_s``; the rest wait in order. It keeps the radio
@@ -21,7 +23,12 @@ from __future__ import annotations
 import logging
 import threading
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
+
+from companion.reporting import Decision
+from fusion.types import VictimReport
+from mavlink_io import statustext
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +36,13 @@ BURST = 3
 INTERVAL_S = 2.0
 MAX_WAITING = 20
 HOLD_S = 10.0
+# What people are told when a health condition changes: (text, MAV_SEVERITY) when it
+# goes bad, when it is fine again. Severity 5 (NOTICE) or more urgent: QGC speaks it.
+CONDITION_WORDS = {
+    "camera": (("camera lost", 3), ("camera back", 5)),
+    "hq": (("HQ link lost", 4), ("HQ link back", 5)),
+    "disk": (("disk full", 4), ("disk space free again", 5)),
+}
 
 
 @dataclass(frozen=True)
@@ -121,3 +135,68 @@ class Conditions:
                 c.told_ok, c.told_mono_s = c.ok, now_mono_s
                 out.append((name, c.ok))
         return out
+
+
+class Announcer:
+    """Lines for people, worded and queued for the reporter, which sends them as
+    STATUSTEXT (``take``) and is woken by ``wake`` when one is queued.
+
+    ``enabled`` is ``[reporting] statustext`` (off: lines are only logged);
+    ``announce_severity`` is a setting the processing thread changes
+    (``RC_ANN_SEV``); ``robot_sysid`` names this robot in its lines.
+    """
+
+    def __init__(
+        self,
+        *,
+        enabled: bool,
+        announce_severity: int,
+        robot_sysid: Callable[[], int],
+        wake: threading.Event,
+    ) -> None:
+        self.enabled = enabled
+        self.announce_severity = announce_severity
+        self._robot_sysid = robot_sysid
+        self._wake = wake
+        self.waiting = Announcements()
+        self.conditions = Conditions()
+
+    def announce(self, text: str, severity: int) -> None:
+        """A status line for people, naming this robot (QGC shows it; NOTICE and
+        more urgent are spoken)."""
+        self._put(f"{statustext.robot_label(self._robot_sysid())} {text}", severity)
+
+    def victim(self, d: Decision, report: VictimReport) -> None:
+        """A victim's line, when its decision says people hear of it."""
+        if d.announce:
+            text = statustext.victim_text(report)
+            severity = statustext.victim_severity(report, d.spoken, self.announce_severity)
+            self._put(text, severity)
+
+    def condition(self, name: str, ok: bool, now_mono_s: float) -> None:
+        """A health condition's state; its changes are announced once each."""
+        self._announce_changes(self.conditions.update(name, ok, now_mono_s))
+
+    def settle(self, now_mono_s: float) -> None:
+        """Announce the conditions whose flapping settled (their hold ended)."""
+        self._announce_changes(self.conditions.due(now_mono_s))
+
+    def take(self, now_mono_s: float) -> list[Announcement]:
+        """The lines the rate limit lets out now, in order (the reporter sends them)."""
+        return self.waiting.take(now_mono_s)
+
+    def seconds_until_due(self, now_mono_s: float) -> float | None:
+        return self.waiting.seconds_until_due(now_mono_s)
+
+    def _announce_changes(self, changes: list[tuple[str, bool]]) -> None:
+        for name, ok in changes:
+            text, severity = CONDITION_WORDS[name][ok]
+            self.announce(text, severity)
+
+    def _put(self, text: str, severity: int) -> None:
+        log.info("announce: %s", text)
+        if not self.enabled:
+            return
+        spoken = severity <= statustext.MAV_SEVERITY_NOTICE
+        self.waiting.put(Announcement(text, severity, spoken))
+        self._wake.set()

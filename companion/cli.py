@@ -224,8 +224,9 @@ def _check_config(config: Config, devices: bool = True) -> int:
 
 
 def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
+    from companion.processing import FaultInjection
     from companion.sdnotify import Notifier
-    from companion.service import FaultInjection, Service
+    from companion.service import Service
     from companion.stopsignals import StopSignals
     from companion.store import StoreError
     from companion.vision import VisionError

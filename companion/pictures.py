@@ -12,8 +12,8 @@ victim has none, or when it scores ``min_gain`` more than the kept one and
 ``min_interval_s`` has passed: then (only then: the score is cheap, encoding is not)
 it is cropped around the victim's box with half the box of context on each side,
 boxes drawn, scaled to ``width_px`` and encoded as a JPEG of at most ``max_bytes``
-(lower quality first, then a smaller scale). The service commits it with the
-frame's state and calls ``keep`` after the commit.
+(lower quality first, then a smaller scale). The ledger (companion/ledger.py)
+commits it with the frame's state and calls ``keep`` after the commit.
 
 ``PictureSender`` (reporter thread) sends the kept pictures that the HQ does not
 have, one at a time, oldest first (a newer picture of the victim being sent
@@ -23,6 +23,8 @@ is 132 bytes, 158 signed); the reporter only calls ``poll`` after the reports du
 went, so pictures use what is left. The processing thread hands pictures over with
 ``offer`` (the one lock); acknowledgements come from the link threads through the
 reporter's queue to ``on_ack``; ``on_done`` (reporter thread) records delivery.
+
+``resume`` makes both at start from what the store kept of the last run.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ import cv2
 import numpy as np
 
 from companion.config import PicturesConfig
-from companion.store import StoredPicture
+from companion.store import Store, StoredPicture, StoreError
 from fusion.registry import Victim
 from fusion.types import Detection, Observation, TrackState, Urgency
 from mavlink_io import picture
@@ -345,3 +347,29 @@ class PictureSender:
         self._refill(now)
         lack = chunk_wire_bytes(picture.CHUNK_BYTES, self._signed) - self._tokens
         return max(due, lack / self.rate_bytes_s if lack > 0 else 0.0)
+
+
+def resume(
+    cfg: PicturesConfig, store: Store, send: Callable[[picture.Chunk], None], *, signed: bool
+) -> tuple[PictureChooser, PictureSender]:
+    """The evidence pictures: those kept before a restart are known (not chosen
+    again unless clearly better), and those the HQ does not have are sent. The
+    sender records each delivery in ``store``."""
+    kept: list[StoredPicture] = []
+    try:
+        kept = store.pictures()
+    except StoreError as exc:
+        log.warning("evidence pictures of the last run unusable, starting without: %s", exc)
+
+    def done(victim_id: int, picture_id: int, _result: int) -> None:
+        """Reporter thread: the HQ has the picture (or refused it): never resend it."""
+        try:
+            store.picture_delivered(victim_id, picture_id)
+        except StoreError as exc:  # sent again after a restart; the HQ says STORED at once
+            log.warning("delivery of picture %d not saved: %s", picture_id, exc)
+
+    sender = PictureSender(cfg, send, done, signed=signed)
+    for p in kept:
+        if cfg.enabled and not p.delivered:
+            sender.offer(p)
+    return PictureChooser(cfg, kept), sender

@@ -1,150 +1,68 @@
 """``rescue-companion run``: the service on the Pi.
 
-Threads (docs/ARCHITECTURE.md):
+``Service`` builds the parts, runs their threads and stops them. Threads
+(docs/ARCHITECTURE.md):
 - vehicle link (mavlink_io.VehicleLink): telemetry in, our HEARTBEAT out;
 - HQ link (optional, mavlink_io.HqLink): acknowledgements and operator actions;
-- camera: frames into a one-slot mailbox (a newer frame replaces an unprocessed
-  one; the drop is counted);
-- processing: pipeline, operator actions, persistence, systemd watchdog;
-- reporter: outbox sends and resends, then evidence pictures at a bounded rate,
-  announcements (rate-limited), health conditions (HQ link, disk), RESCUE_STATUS.
+- camera (companion/capture.py): frames into a one-slot mailbox (a newer frame
+  replaces an unprocessed one; the drop is counted);
+- processing (companion/processing.py): operator actions and ground requests
+  (companion/ground.py), the pipeline, persistence (companion/ledger.py), systemd
+  watchdog;
+- reporter (companion/reporter.py): outbox sends and resends, then evidence
+  pictures at a bounded rate, announcements (rate-limited), health conditions (HQ
+  link, disk) and RESCUE_STATUS (companion/status.py).
 
 The processing thread commits a frame's consequences (tracker, what was reported,
 the new reports and their outbox entries) in one SQLite transaction; the outbox
 schedules the reports only after that commit, so the reporter never sends what is
 not on disk, and after a crash nothing unacknowledged is lost. Acknowledgements
 arrive on the link threads, which never write SQLite: they are queued to the
-reporter, the one owner of the outbox.
+reporter, the one owner of the outbox. The queues the link threads fill exist
+before the links open, since a link's reader thread starts with it.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import queue
-import shutil
-import statistics
 import threading
 import time
-from collections import Counter, deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
-from companion.announcements import Announcement, Announcements, Conditions
+from companion import pictures
+from companion.announcements import Announcer
 from companion.calibration import camera_model
+from companion.capture import Capture, FrameMailbox, recording_dir
 from companion.config import Config
+from companion.ground import Ground
+from companion.ledger import Ledger
+from companion.links import Links
+from companion.livevideo import LiveVideo
 from companion.params import Settings
-from companion.pictures import Candidate, PictureChooser, PictureSender
-from companion.pipeline import FrameOutcome, Pipeline
-from companion.reporting import Decision, ReportPolicy
-from companion.sdnotify import Notifier, watchdog_period_s
-from companion.sources import (
-    CameraError,
-    CameraTimeout,
-    EndOfStream,
-    Frame,
-    open_camera,
-    write_frame,
-)
+from companion.pipeline import Pipeline
+from companion.processing import FaultInjection, FrameStats, Processing
+from companion.reporter import Reporter
+from companion.reporting import ReportPolicy
+from companion.sdnotify import Notifier
+from companion.sources import open_camera
 from companion.state import load_state
-from companion.store import StoredPicture, StoreError
-from companion.video import Label, VideoStreamer, labels_in_view, shot
+from companion.status import Status
 from companion.vision import make_detector
-from fusion.types import GlobalOrigin, TrackState
-from mavlink_io import convert, dialect, picture, statustext
-from mavlink_io.camera import CameraServer, StreamInfo
-from mavlink_io.codec import Codec, MavMessage
-from mavlink_io.hqlink import HqLink
-from mavlink_io.link import ReconnectingLink
-from mavlink_io.linkspec import parse_link
+from mavlink_io import dialect
+from mavlink_io.codec import MavMessage
 from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
-from mavlink_io.reliable import Deduplicator, Outbox
+from mavlink_io.reliable import Outbox
 from mavlink_io.signing import Signing, load_signing
 from mavlink_io.tlog import TlogWriter
-from mavlink_io.vehicle import VehicleLink, VehicleSettings
 
 log = logging.getLogger(__name__)
 
 MAV_STATE_STANDBY = 3
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
-_SAVE_PERIOD_S = 5.0  # the tracker is saved at least this often while frames flow
-_MAILBOX_WAIT_S = 0.25
 _STOP_POLL_S = 0.1  # how often the main thread looks for a stop signal
-_SUMMARY_PERIOD_S = 30.0  # an INFO line for journald this often
-_FIRST_WAIT_NOTE_S = 3.0  # no autopilot this long after start (or a loss): say so
-_WAIT_NOTE_PERIOD_S = 30.0  # ... and again this often while it lasts
-_DISK_FULL_BYTES = 64 * 1024 * 1024  # less free space than this on the state disk is "full"
-# What people are told when a health condition changes: (text, MAV_SEVERITY) when it
-# goes bad, when it is fine again. Severity 5 (NOTICE) or more urgent: QGC speaks it.
-_CONDITION_WORDS = {
-    "camera": (("camera lost", 3), ("camera back", 5)),
-    "hq": (("HQ link lost", 4), ("HQ link back", 5)),
-    "disk": (("disk full", 4), ("disk space free again", 5)),
-}
-
-
-@dataclass(frozen=True)
-class FaultInjection:
-    """Testing aids for the service tests (CLI --debug-* flags); off by default."""
-
-    processing_delay_s: float = 0.0  # extra time per frame: processing falls behind
-    stall_after_s: float | None = None  # the processing loop hangs after this long
-
-
-class FrameMailbox:
-    """One frame slot between the camera and processing threads."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._frame: Frame | None = None
-        self.received = 0
-        self.dropped = 0
-
-    def put(self, frame: Frame) -> None:
-        with self._cond:
-            if self._frame is not None:
-                self.dropped += 1
-            self._frame = frame
-            self.received += 1
-            self._cond.notify()
-
-    def get(self, timeout_s: float) -> Frame:
-        """The newest frame; CameraTimeout when none arrives in time."""
-        with self._cond:
-            if self._frame is None and not self._cond.wait_for(
-                lambda: self._frame is not None, timeout_s
-            ):
-                raise CameraTimeout(f"no frame within {timeout_s} s")
-            frame, self._frame = self._frame, None
-            assert frame is not None  # wait_for guarantees it
-            return frame
-
-
-class FrameStats:
-    """Processed-frame times and vision durations: written by processing, read by
-    the reporter, so every access holds the lock (iterating a deque that another
-    thread appends to raises "deque mutated during iteration")."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._vision_ms: deque[float] = deque(maxlen=50)
-        self._processed: deque[float] = deque(maxlen=100)  # monotonic times
-
-    def add(self, t_mono_s: float, vision_ms: float | None) -> None:
-        with self._lock:
-            self._processed.append(t_mono_s)
-            if vision_ms is not None:
-                self._vision_ms.append(vision_ms)
-
-    def summary(self, now_mono_s: float, window_s: float = 5.0) -> tuple[float, float]:
-        """(frames per second over the last ``window_s``, median vision ms)."""
-        with self._lock:
-            recent = sum(1 for t in self._processed if now_mono_s - t <= window_s)
-            vision_ms = statistics.median(self._vision_ms) if self._vision_ms else 0.0
-        return recent / window_s, vision_ms
 
 
 class Service:
@@ -155,11 +73,11 @@ class Service:
     ) -> None:
         self.config = config
         self.notifier = notifier
-        self.faults = faults or FaultInjection()
+        faults = faults or FaultInjection()
         self.stop = threading.Event()
         self.started_mono_s = time.monotonic()
         self.failure: str | None = None
-        self._m = dialect.load()
+        m = dialect.load()
         # Everything that can refuse to start does so here, before any thread runs.
         self.signing: Signing | None = (
             load_signing(config.signing.key_file, config.signing.link_id)
@@ -171,7 +89,7 @@ class Service:
             rep.move_threshold_sigma, rep.move_min_m, rep.update_min_interval_s
         )
         state = load_state(config.paths.state_dir, config.tracker, self.policy)
-        self.store, self.tracker, self._report_seq = state.store, state.tracker, state.report_seq
+        self.store, self.tracker = state.store, state.tracker
         self._state_problem = state.problem  # announced once the threads run
         # Parameters set from the ground override the config file's values (companion/params.py).
         self.settings = Settings(
@@ -179,233 +97,147 @@ class Service:
         )
         config = self.config = self.settings.config
         self.policy.update_min_interval_s = config.reporting.update_min_interval_s
-        self.param_server = ParamServer(self.settings, config.vehicle.component_id, self._m)
-        self.ground_requests: queue.Queue[MavMessage] = queue.Queue(maxsize=64)
+        self.param_server = ParamServer(self.settings, config.vehicle.component_id, m)
         self.camera_model = camera_model(config.camera)
         self.pipeline = Pipeline(
             config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
         )
         self.tlog = TlogWriter(config.paths.tlogs, int(config.paths.tlog_max_mb * 1e6))
-        self.frames_dir: Path | None = None
-        if config.paths.record_frames:
-            self.frames_dir = config.paths.state_dir / "frames" / time.strftime("%Y%m%d-%H%M%S")
-            try:
-                self.frames_dir.mkdir(parents=True, exist_ok=True)
-            except OSError as exc:
-                log.warning(
-                    "not recording frames: cannot create %s: %s", self.frames_dir, exc.strerror
-                )
-                self.frames_dir = None
-        self.mailbox = FrameMailbox()
-        self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
+        frames_dir = recording_dir(config)
+        mailbox = FrameMailbox()
+        # What the link threads hand over (_on_dialect): acknowledgements to the
+        # reporter, operator actions and ground requests to processing.
         self.acks: queue.Queue[MavMessage] = queue.Queue(maxsize=1024)
-        self.announcements = Announcements()
-        self.conditions = Conditions()
-        self.dedupe = Deduplicator()
-        self.chunk_ids = statustext.ChunkIds()
-        self._wake_reporter = threading.Event()
-        self._camera_ok = False
-        self.stats = FrameStats()
-        self._unsaved: dict[int, Decision] = {}  # by victim: reports not yet on disk
-        self._store_failing = False
-        self._counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
-        self._count_victims()  # the restored ones, before any thread runs
-        self._floor_down_m = config.geolocation.floor_down_m
-        self._origin: GlobalOrigin | None = None  # the origin reports were last made with
+        self.actions: queue.Queue[MavMessage] = queue.Queue(maxsize=256)
+        self.ground_requests: queue.Queue[MavMessage] = queue.Queue(maxsize=64)
+        self.wake_reporter = threading.Event()
+        self.camera_ok = threading.Event()  # set by the camera thread while frames come
+        self.announcer = Announcer(
+            enabled=config.reporting.statustext,
+            announce_severity=config.reporting.announce_severity,
+            robot_sysid=self._robot_sysid,
+            wake=self.wake_reporter,
+        )
+        # Made before the links open (it reads the saved outbox); it sends through
+        # them, and only from the reporter thread, which starts after they are open.
         self.outbox = Outbox(
-            self._send_dialect,
+            lambda msg: self.links.send_dialect(msg),
             store=self.store,
             initial_s=config.hq.resend_initial_s,
             max_s=config.hq.resend_max_s,
         )
-        v = config.vehicle
-        self.vehicle = VehicleLink(
-            ReconnectingLink(parse_link(v.url), max_backoff_s=v.reopen_max_backoff_s),
-            VehicleSettings(
-                system_id=v.system_id,
-                component_id=v.component_id,
-                heartbeat_timeout_s=v.heartbeat_timeout_s,
-                heartbeat_period_s=config.reporting.status_period_s,
-                attitude_rate_hz=v.attitude_rate_hz,
-                local_position_rate_hz=v.local_position_rate_hz,
-                global_position_rate_hz=v.global_position_rate_hz,
-                pose_history_s=v.pose_history_s,
-            ),
-            codec=Codec(v.system_id or 1, v.component_id, self.signing),
-            health=self._health,
-            tlog=self.tlog,
-            on_dialect=self._on_dialect,
+        self.links = Links(
+            config, self.signing, self.tlog, health=self._health, on_dialect=self._on_dialect
         )
-        self.hq: HqLink | None = None
-        if config.hq.url:
-            self.hq = HqLink(
-                ReconnectingLink(parse_link(config.hq.url), max_backoff_s=v.reopen_max_backoff_s),
-                Codec(v.system_id or 1, v.component_id, self.signing),
-                self._on_dialect,
-                self.tlog,
-            )
-        self.camera = open_camera(config.camera)
-        # The camera is its own component (QGC looks for cameras at 100-105 only),
-        # with its own codec (its own sequence numbers) on the vehicle link.
-        self.camera_codec = Codec(v.system_id or 1, config.video.component_id, self.signing)
-        self.vehicle.other_components = frozenset({config.video.component_id})
-        self.video, self.camera_server = self._video(config)
-        self.chooser, self.picture_sender = self._pictures(config)
-
-    def _pictures(self, config: Config) -> tuple[PictureChooser, PictureSender]:
-        """The evidence pictures: those kept before a restart are known (not chosen
-        again unless clearly better), and those the HQ does not have are sent."""
-        kept: list[StoredPicture] = []
-        try:
-            kept = self.store.pictures()
-        except StoreError as exc:
-            log.warning("evidence pictures of the last run unusable, starting without: %s", exc)
-        sender = PictureSender(
+        self.vehicle, self.hq = self.links.vehicle, self.links.hq
+        self.capture = Capture(
+            camera=open_camera(config.camera),
+            mailbox=mailbox,
+            frames_dir=frames_dir,
+            camera_ok=self.camera_ok,
+            announcer=self.announcer,
+            stop=self.stop,
+        )
+        self.video = LiveVideo(config, self.camera_model, self.vehicle, self.signing, m)
+        chooser, picture_sender = pictures.resume(
             config.pictures,
-            lambda chunk: self._send_dialect(chunk.to_msg(self._m)),
-            self._picture_done,
+            self.store,
+            lambda chunk: self.links.send_dialect(chunk.to_msg(m)),
             signed=self.signing is not None,
         )
-        for p in kept:
-            if config.pictures.enabled and not p.delivered:
-                sender.offer(p)
-        return PictureChooser(config.pictures, kept), sender
-
-    def _picture_done(self, victim_id: int, picture_id: int, _result: int) -> None:
-        """Reporter thread: the HQ has the picture (or refused it): never resend it."""
-        try:
-            self.store.picture_delivered(victim_id, picture_id)
-        except StoreError as exc:  # sent again after a restart; the HQ says STORED at once
-            log.warning("delivery of picture %d not saved: %s", picture_id, exc)
-
-    def _video(self, config: Config) -> tuple[VideoStreamer | None, CameraServer | None]:
-        """The live video for QGC and the camera protocol that advertises it, when on
-        and a destination is known ([video] host, else the host of [hq] url)."""
-        v = config.video
-        host = v.host or (parse_link(config.hq.url).host if config.hq.url else "")
-        if not v.enabled or not host:
-            log.info("no video: %s", "[video] enabled = false" if not v.enabled else "no host")
-            return None, None
-        k = self.camera_model.intrinsics
-        hfov_deg = math.degrees(2.0 * math.atan(0.5 * k.width_px / k.fx_px))
-        info = StreamInfo(
-            v.port, v.width_px, v.height_px, v.fps, round(v.bitrate_kbps * 1000), hfov_deg
+        self.ledger = Ledger(
+            store=self.store,
+            tracker=self.tracker,
+            policy=self.policy,
+            outbox=self.outbox,
+            chooser=chooser,
+            picture_sender=picture_sender,
+            announcer=self.announcer,
+            vehicle=self.vehicle,
+            robot_sysid=self._robot_sysid,
+            report_seq=state.report_seq,
+            floor_down_m=config.geolocation.floor_down_m,
+            wake_reporter=self.wake_reporter,
+            m=m,
         )
-        return VideoStreamer(v, host), CameraServer(v.component_id, info, self._m)
+        ground = Ground(
+            actions=self.actions,
+            requests=self.ground_requests,
+            tracker=self.tracker,
+            policy=self.policy,
+            ledger=self.ledger,
+            param_server=self.param_server,
+            video=self.video,
+            vehicle=self.vehicle,
+            links=self.links,
+            announcer=self.announcer,
+            m=m,
+        )
+        self.processing = Processing(
+            config=config,
+            pipeline=self.pipeline,
+            mailbox=mailbox,
+            stats=FrameStats(),
+            vehicle=self.vehicle,
+            ground=ground,
+            ledger=self.ledger,
+            chooser=chooser,
+            video=self.video,
+            notifier=notifier,
+            faults=faults,
+            started_mono_s=self.started_mono_s,
+            stop=self.stop,
+        )
+        status = Status(
+            config=config,
+            vehicle=self.vehicle,
+            hq=self.hq,
+            tlog=self.tlog,
+            signed=self.signing is not None,
+            camera_ok=self.camera_ok,
+            processing=self.processing,
+            outbox=self.outbox,
+            picture_sender=picture_sender,
+            announcer=self.announcer,
+            links=self.links,
+            notifier=notifier,
+            started_mono_s=self.started_mono_s,
+            m=m,
+        )
+        self.reporter = Reporter(
+            acks=self.acks,
+            outbox=self.outbox,
+            picture_sender=picture_sender,
+            announcer=self.announcer,
+            status=status,
+            video=self.video,
+            vehicle=self.vehicle,
+            links=self.links,
+            status_period_s=config.reporting.status_period_s,
+            stop=self.stop,
+            wake=self.wake_reporter,
+            m=m,
+        )
 
-    # -- state -------------------------------------------------------------------------
+    def _robot_sysid(self) -> int:
+        """This robot's system ID: the vehicle's once heard, else the configured one."""
+        return self.vehicle.sysid or self.config.vehicle.system_id or 1
 
-    def _commit(self, decisions: list[Decision], candidates: Sequence[Candidate] = ()) -> None:
-        """Persist the tracker, the policy, the new reports and the new evidence
-        pictures in one transaction. A picture takes its number from the report
-        sequence (never reused, increasing); one not saved is forgotten (a later
-        frame gives another).
+    def _apply_settings(self, config: Config) -> None:
+        """A setting changed from the ground (processing thread): applied at once."""
+        self.video.apply(config)
+        self.config = config
+        self.pipeline.detector.min_score = config.detector.min_score
+        self.policy.update_min_interval_s = config.reporting.update_min_interval_s
+        self.announcer.announce_severity = config.reporting.announce_severity
 
-        When the database cannot be written (a full disk: recorded frames share it),
-        the reports wait in memory (one per victim, the newest, its flags merged) and
-        go into the next commit, the periodic save included; nothing unsaved is sent.
-        The failure and the recovery are each said once, loudly. People hear about a
-        victim at once, whatever the disk.
-        """
-        for d in decisions:
-            kept = self._unsaved.get(d.victim.victim_id)
-            self._unsaved[d.victim.victim_id] = (
-                d if kept is None else Decision(d.victim, kept.flags | d.flags, False)
-            )
-        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
-        origin = self.vehicle.origin
-        now = time.time()
-        for d in decisions:
-            self._queue_people(d, d.victim.to_report(sysid, self._floor_down_m, origin))
-        seq = self._report_seq
-        pictures: list[tuple[Candidate, StoredPicture]] = []
-        try:
-            with self.store.transaction():
-                for d in self._unsaved.values():
-                    seq += 1
-                    report = d.victim.to_report(sysid, self._floor_down_m, origin)
-                    msg = convert.victim_report_to_msg(
-                        report, seq, d.flags, now, d.victim.merged_into, self._m
-                    )
-                    self.outbox.stage(msg)  # in this transaction; scheduled after it
-                for c in candidates:
-                    seq += 1
-                    p = StoredPicture(c.victim_id, seq, c.score, c.taken_unix_s, c.jpeg)
-                    self.store.put_picture(p)
-                    pictures.append((c, p))
-                self.store.set("tracker", self.tracker.snapshot())
-                self.store.set("reported", self.policy.snapshot())
-                self.store.set("report_seq", seq)
-        except StoreError as exc:
-            self.outbox.discard()
-            if not self._store_failing:
-                self._store_failing = True
-                log.error(
-                    "cannot save: %s. The disk may be full; victims and %d reports are kept "
-                    "in memory and saved (then sent) when it can be written again",
-                    exc,
-                    len(self._unsaved),
-                )
-                self.announce("Rescue companion: cannot save state, disk full?", 2)
-            return
-        except BaseException:
-            self.outbox.discard()
-            raise
-        self._report_seq = seq
-        saved = len(self._unsaved)
-        self._unsaved.clear()
-        self.outbox.publish()  # committed: now the reporter may send them
-        for c, p in pictures:
-            self.chooser.keep(c)
-            self.picture_sender.offer(p)
-            log.info(
-                "picture %d of victim %d: %d bytes, score %.3f",
-                p.picture_id,
-                p.victim_id,
-                len(p.jpeg),
-                p.score,
-            )
-        if self._store_failing:
-            self._store_failing = False
-            log.warning("the state database can be written again; %d kept reports saved", saved)
-            self.announce("Rescue companion: state saved again", 5)
-        self._wake_reporter.set()
-
-    def _queue_people(self, d: Decision, report: Any) -> None:
-        if d.announce:
-            text = statustext.victim_text(report)
-            severity = statustext.victim_severity(
-                report, d.spoken, self.config.reporting.announce_severity
-            )
-            self._put_announcement(text, severity)
-
-    def announce(self, text: str, severity: int) -> None:
-        """A status line for people, naming this robot (QGC shows it; NOTICE and
-        more urgent are spoken)."""
-        sysid = self.vehicle.sysid or self.config.vehicle.system_id or 1
-        self._put_announcement(f"{statustext.robot_label(sysid)} {text}", severity)
-
-    def _put_announcement(self, text: str, severity: int) -> None:
-        log.info("announce: %s", text)
-        if not self.config.reporting.statustext:
-            return
-        spoken = severity <= statustext.MAV_SEVERITY_NOTICE
-        self.announcements.put(Announcement(text, severity, spoken))
-        self._wake_reporter.set()
-
-    def _condition(self, name: str, ok: bool) -> None:
-        """A health condition's state; its changes are announced once each."""
-        self._announce_changes(self.conditions.update(name, ok, time.monotonic()))
-
-    def _announce_changes(self, changes: list[tuple[str, bool]]) -> None:
-        for name, ok in changes:
-            text, severity = _CONDITION_WORDS[name][ok]
-            self.announce(text, severity)
+    def _save_settings(self, snapshot: dict[str, Any]) -> None:
+        self.store.set("params", snapshot)
 
     # -- links ---------------------------------------------------------------------------
 
     def _health(self) -> int:
-        if not self._camera_ok:
+        if not self.camera_ok.is_set():
             return MAV_STATE_CRITICAL
         return MAV_STATE_ACTIVE if self.vehicle.poses.latest() is not None else MAV_STATE_STANDBY
 
@@ -424,7 +256,7 @@ class Service:
                 self.acks.put_nowait(msg)
             except queue.Full:  # the report is resent and acknowledged again
                 log.warning("acknowledgement queue full; ack of %d dropped", msg.seq)
-            self._wake_reporter.set()
+            self.wake_reporter.set()
             return
         try:
             self.actions.put_nowait(msg)
@@ -432,19 +264,6 @@ class Service:
             log.warning(
                 "operator action queue full; action %d dropped (the HQ resends)", msg.action_seq
             )
-
-    def _send_dialect(self, msg: MavMessage) -> None:
-        if self.hq is not None:
-            if self.vehicle.sysid:
-                self.hq.codec.src_system = self.vehicle.sysid
-            self.hq.send(msg)
-        if self.config.hq.tunnel:
-            self.vehicle.send_tunnel(msg)
-
-    def _send_plain(self, msg: MavMessage) -> None:
-        self.vehicle.send(msg)
-        if self.hq is not None:
-            self.hq.send(msg)
 
     # -- threads -----------------------------------------------------------------------
 
@@ -459,378 +278,6 @@ class Service:
 
         return run
 
-    def _camera_loop(self) -> None:
-        while not self.stop.is_set():
-            try:
-                frame = self.camera.read(timeout_s=0.5)
-            except CameraTimeout:
-                frame = None
-            except EndOfStream as exc:
-                log.info("camera: %s", exc)
-                self._camera_ok = False
-                self.announce("camera stream ended", 4)
-                self.stop.wait()
-                return
-            except CameraError as exc:
-                log.debug("camera: %s", exc)
-                frame = None
-            ok = frame is not None or self.camera.healthy
-            self._condition("camera", ok)
-            self._camera_ok = ok
-            if frame is not None:
-                self.mailbox.put(frame)
-                self._record_frame(frame)
-
-    def _record_frame(self, frame: Frame) -> None:
-        """Save the frame for replay; a full disk stops the recording, not the camera."""
-        if self.frames_dir is None:
-            return
-        try:
-            write_frame(self.frames_dir, frame)
-        except CameraError as exc:
-            log.warning("frame recording stopped: %s", exc)
-            self.frames_dir = None
-
-    def _processing_loop(self) -> None:
-        watchdog_s = watchdog_period_s()
-        next_ping = 0.0
-        last_save = time.monotonic()
-        while not self.stop.is_set():
-            stall = self.faults.stall_after_s
-            if stall is not None and time.monotonic() - self.started_mono_s > stall:
-                log.warning("fault injection: the processing loop stalls now")
-                self.stop.wait()
-                return
-            self._handle_actions()
-            self._handle_ground_requests()
-            self._check_origin()
-            try:
-                frame = self.mailbox.get(_MAILBOX_WAIT_S)
-            except CameraTimeout:
-                frame = None
-            if frame is not None:
-                outcome = self.pipeline.process(frame, self.vehicle.poses)
-                self._after_frame(outcome)
-                self._offer_video(frame, outcome)
-                candidates = self._choose_pictures(frame, outcome)
-                if (
-                    outcome.decisions
-                    or candidates
-                    or (outcome.events and time.monotonic() - last_save > 0.5)
-                    or (time.monotonic() - last_save > _SAVE_PERIOD_S)
-                ):
-                    self._commit(outcome.decisions, candidates)
-                    last_save = time.monotonic()
-                if self.faults.processing_delay_s:
-                    self.stop.wait(self.faults.processing_delay_s)
-            now = time.monotonic()
-            if watchdog_s is not None and now >= next_ping:
-                self.notifier.watchdog()
-                next_ping = now + watchdog_s
-
-    def _choose_pictures(self, frame: Frame, outcome: FrameOutcome) -> list[Candidate]:
-        if not (self.config.pictures.enabled and outcome.located):
-            return []
-        return self.chooser.consider(
-            frame.image, outcome.located, self.tracker.victims(), frame.t_unix_s
-        )
-
-    def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
-        if self.video is None:
-            return
-        labels: tuple[Label, ...] = ()
-        if outcome.pose is not None:
-            labels = labels_in_view(
-                self.camera_model, outcome.pose, self.tracker.victims(), self._floor_down_m
-            )
-        self.video.offer(shot(frame.image, outcome.detections, labels))
-
-    def _check_origin(self) -> None:
-        """Victims reported before the EKF origin was known (or under another origin)
-        are reported again, now with latitude, longitude and a map marker."""
-        origin = self.vehicle.origin
-        if origin is None or origin == self._origin:
-            return
-        self._origin = origin
-        decisions = self.policy.requested(self.tracker.victims(), time.time(), flags=0)
-        if decisions:
-            log.info("EKF origin known: reporting %d victims again with lat/lon", len(decisions))
-            self._commit(decisions)
-
-    def _after_frame(self, outcome: FrameOutcome) -> None:
-        vision_ms = None
-        if outcome.pose is not None:
-            self._floor_down_m = outcome.pose.down_m + self.config.geolocation.floor_down_m
-            vision_ms = outcome.vision_ms
-        self.stats.add(time.monotonic(), vision_ms)
-        self._count_victims()
-
-    def _count_victims(self) -> None:
-        """Publish the victim counts for the reporter, which must not touch the tracker
-        (it is the processing thread's: iterating it there can see it change)."""
-        victims = self.tracker.victims(include_tentative=True)
-        confirmed = sum(
-            1 for v in victims if v.state in (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
-        )
-        self._counts = (confirmed, sum(1 for v in victims if v.state == TrackState.TENTATIVE))
-
-    def _handle_actions(self) -> None:
-        m = self._m
-        while True:
-            try:
-                msg = self.actions.get_nowait()
-            except queue.Empty:
-                return
-            result = m.RESCUE_ACK_RESULT_ACCEPTED
-            if self.dedupe.check(msg):
-                result = m.RESCUE_ACK_RESULT_DUPLICATE
-            else:
-                decisions = self._apply_action(msg)
-                if decisions is None:
-                    result = m.RESCUE_ACK_RESULT_REJECTED
-                else:
-                    self._commit(decisions)
-            ack = m.MAVLink_rescue_ack_message(
-                msg.get_srcSystem(),
-                msg.get_srcComponent(),
-                dialect.RESCUE_OPERATOR_ACTION_ID,
-                msg.action_seq,
-                result,
-            )
-            self._send_dialect(ack)
-
-    def _handle_ground_requests(self) -> None:
-        """Answer parameter and camera requests (processing thread: it owns the
-        detector, the policy and the store)."""
-        while True:
-            try:
-                msg = self.ground_requests.get_nowait()
-            except queue.Empty:
-                return
-            if self.camera_server is not None:
-                pose = self.vehicle.poses.latest()
-                for reply in self.camera_server.handle(msg, pose.t_boot_s if pose else 0.0) or []:
-                    self._send_camera(reply)
-            handled = self.param_server.handle(msg)
-            if handled is None:
-                continue
-            for reply in handled.replies:
-                self.vehicle.send(reply)
-            if handled.refused:
-                self.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
-
-    def _send_camera(self, msg: MavMessage) -> None:
-        """A message from the camera component (the vehicle's system ID, 100)."""
-        if self.vehicle.sysid:
-            self.camera_codec.src_system = self.vehicle.sysid
-        self.vehicle.send_encoded(self.camera_codec.encode(msg))
-
-    def _apply_settings(self, config: Config) -> None:
-        if config.video != self.config.video:  # on/off or bit rate: a new stream
-            if self.video is not None:
-                self.video.close()
-            self.video, self.camera_server = self._video(config)
-            if self.video is not None:
-                self.video.start()
-        self.config = config
-        self.pipeline.detector.min_score = config.detector.min_score
-        self.policy.update_min_interval_s = config.reporting.update_min_interval_s
-
-    def _save_settings(self, snapshot: dict[str, Any]) -> None:
-        self.store.set("params", snapshot)
-
-    def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
-        """The reports an operator action causes; None if it cannot be applied."""
-        m = self._m
-        now = time.time()
-        if msg.action == m.RESCUE_OPERATOR_ACTION_RESEND:
-            wanted = [v for v in self.tracker.victims() if msg.victim_id in (0, v.victim_id)]
-            return self.policy.requested(wanted, now)
-        states = {
-            m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
-            m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
-            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
-        }
-        state = states.get(msg.action)
-        if state is None:
-            log.warning("operator action %d: unknown action %d", msg.action_seq, msg.action)
-            return None
-        try:
-            event = self.tracker.mark(msg.victim_id, state, now)
-        except (KeyError, ValueError) as exc:
-            log.warning("operator action %d: %s", msg.action_seq, exc)
-            return None
-        log.info("operator marked victim %d %s", msg.victim_id, state.name)
-        return self.policy.decide([event], self.tracker.victims(), now)
-
-    def _reporter_loop(self) -> None:
-        period = self.config.reporting.status_period_s
-        next_status = 0.0
-        next_summary = time.monotonic() + _SUMMARY_PERIOD_S
-        was_connected = False
-        next_wait_note = time.monotonic() + _FIRST_WAIT_NOTE_S
-        while not self.stop.is_set():
-            self._apply_acks()
-            self.outbox.poll()
-            if self.outbox.seconds_until_due() != 0.0:  # reports first, always
-                self.picture_sender.poll()
-            now = time.monotonic()
-            for a in self.announcements.take(now):
-                for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
-                    self._send_plain(msg)
-            connected = self.vehicle.connected
-            if connected != was_connected:
-                self._link_changed(connected)
-                was_connected = connected
-            if connected:
-                next_wait_note = now + _FIRST_WAIT_NOTE_S
-            elif now >= next_wait_note:
-                next_wait_note = now + _WAIT_NOTE_PERIOD_S
-                self._note_waiting(now)
-            if now >= next_status:
-                next_status = now + period
-                self._send_status(now)
-                self._check_health(now)
-                if self.camera_server is not None:  # the camera's own heartbeat: QGC finds it
-                    m = self._m
-                    self._send_camera(
-                        m.MAVLink_heartbeat_message(
-                            m.MAV_TYPE_CAMERA, m.MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE, 3
-                        )
-                    )
-            if now >= next_summary:
-                next_summary = now + _SUMMARY_PERIOD_S
-                self._log_summary()
-            waits = [
-                next_status - now,
-                self.outbox.seconds_until_due(),
-                self.picture_sender.seconds_until_due(),
-                self.announcements.seconds_until_due(now),
-            ]
-            wait = min(w for w in waits if w is not None)
-            self._wake_reporter.wait(max(0.01, wait))
-            self._wake_reporter.clear()
-
-    def _note_waiting(self, now: float) -> None:
-        """Say what the service waits for, and where, while no autopilot is heard."""
-        v = self.config.vehicle
-        heard = self.vehicle.state().counters["messages_in"]
-        spec = parse_link(v.url)
-        where = spec.describe()
-        bound = getattr(self.vehicle.link, "local_address", None)
-        if spec.kind in ("udpin", "tcpin") and isinstance(bound, tuple) and spec.port == 0:
-            where += f" (port {bound[1]} chosen by the system)"
-        log.warning(
-            "waiting for the autopilot: no HEARTBEAT from a flight controller%s on the "
-            "vehicle link %s (%s) for %.0f s%s; pose, geolocation and reports to the HQ "
-            "over the vehicle link wait for it",
-            f" with system ID {v.system_id}" if v.system_id else "",
-            v.url,
-            where,
-            now - self.started_mono_s,
-            f", {heard} other messages heard" if heard else ", nothing heard",
-        )
-
-    def _apply_acks(self) -> None:
-        while True:
-            try:
-                ack = self.acks.get_nowait()
-            except queue.Empty:
-                return
-            if ack.get_msgId() == dialect.RESCUE_PICTURE_ACK_ID:
-                try:
-                    self.picture_sender.on_ack(picture.Ack.from_msg(ack))
-                except picture.BadChunk as exc:
-                    log.warning("picture acknowledgement refused: %s", exc)
-            elif self.outbox.on_ack(ack):
-                log.debug("report %d acknowledged", ack.seq)
-
-    def _check_health(self, now: float) -> None:
-        """The HQ link (when there is a direct one; heard within hq_timeout_s, judged
-        from hq_timeout_s after start) and the state disk."""
-        if self.hq is not None and now - self.started_mono_s >= self.config.hq.hq_timeout_s:
-            self._condition("hq", self.hq.heard_within(self.config.hq.hq_timeout_s))
-        try:
-            free = shutil.disk_usage(self.config.paths.state_dir).free
-        except OSError as exc:
-            log.debug("free space of %s: %s", self.config.paths.state_dir, exc)
-        else:
-            self._condition("disk", free >= _DISK_FULL_BYTES)
-        self._announce_changes(self.conditions.due(now))  # a flapping one settled
-
-    def _link_changed(self, connected: bool) -> None:
-        if connected:
-            known = self._counts[0]
-            self.announce(f"companion online, {known} victims known", 5)
-            self.outbox.resend_all_now()
-        else:
-            # The autopilot cannot hear this; the HQ link (if any) can.
-            self.announce("companion: vehicle link lost", 3)
-
-    def _log_summary(self) -> None:
-        c = self.pipeline.counters
-        counts = Counter(dict(c.rejected))  # one C-level copy: processing adds keys meanwhile
-        rejected = ", ".join(f"{k}: {n}" for k, n in counts.most_common(3)) or "none"
-        log.info(
-            "%d frames (%d without a pose, %d dropped), %d detections, %d observations "
-            "(rejected: %s), %d confirmed victims, %d reports unacknowledged, "
-            "%d pictures delivered, %d waiting",
-            c.frames,
-            c.frames_without_pose,
-            self.mailbox.dropped,
-            c.detections,
-            c.observations,
-            rejected,
-            self._counts[0],
-            self.outbox.pending_count,
-            self.picture_sender.counters.delivered,
-            self.picture_sender.pending,
-        )
-
-    def _send_status(self, now: float) -> None:
-        m = self._m
-        fps, vision_ms = self.stats.summary(now)
-        drop_pct = 100.0 * self.mailbox.dropped / max(1, self.mailbox.received)
-        flags = 0
-        if self.vehicle.connected:
-            flags |= m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
-        if self._camera_ok:
-            flags |= m.RESCUE_STATUS_FLAGS_CAMERA
-        if self.hq is not None and self.hq.heard_within(self.config.hq.hq_timeout_s):
-            flags |= m.RESCUE_STATUS_FLAGS_HQ_LINK
-        if self.vehicle.clock.synced:
-            flags |= m.RESCUE_STATUS_FLAGS_CLOCK_SYNCED
-        if self.vehicle.origin is not None:
-            flags |= m.RESCUE_STATUS_FLAGS_GLOBAL_ORIGIN
-        if self.tlog.recording:
-            flags |= m.RESCUE_STATUS_FLAGS_RECORDING
-        if self.signing is not None:
-            flags |= m.RESCUE_STATUS_FLAGS_SIGNING
-        confirmed, tentative = self._counts
-        pending = self.outbox.pending_count
-        self._send_dialect(
-            m.MAVLink_rescue_status_message(
-                int(now - self.started_mono_s),
-                fps,
-                drop_pct,
-                vision_ms,
-                flags,
-                min(confirmed, 0xFFFF),
-                min(tentative, 0xFFFF),
-                min(pending, 0xFFFF),
-            )
-        )
-        link = (
-            "vehicle up"
-            if self.vehicle.connected
-            else f"waiting for the autopilot on {self.config.vehicle.url}"
-        )
-        camera = "ok" if self._camera_ok else "lost"
-        self.notifier.status(
-            f"{link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
-            f"{confirmed} victims, {pending} unacknowledged"
-        )
-
     # -- lifecycle ---------------------------------------------------------------------
 
     def run(self, stop_reason: Callable[[], str | None] = lambda: None) -> int:
@@ -840,17 +287,16 @@ class Service:
         threads = [
             threading.Thread(target=self._guard(n, f), name=n, daemon=True)
             for n, f in (
-                ("camera", self._camera_loop),
-                ("processing", self._processing_loop),
-                ("reporter", self._reporter_loop),
+                ("camera", self.capture.run),
+                ("processing", self.processing.run),
+                ("reporter", self.reporter.run),
             )
         ]
         for t in threads:
             t.start()
         if self._state_problem is not None:
-            self.announce("Rescue companion: saved state unusable, started afresh", 3)
-        if self.video is not None:
-            self.video.start()
+            self.announcer.announce("Rescue companion: saved state unusable, started afresh", 3)
+        self.video.start()
         self.notifier.ready(
             f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
         )
@@ -877,24 +323,21 @@ class Service:
     def close(self) -> None:
         """Save, then close everything; safe twice."""
         try:
-            self._apply_acks()  # heard before the stop: do not resend them after a restart
+            self.reporter.apply_acks()  # heard before the stop: not resent after a restart
             # The reports a full disk kept in memory go into this last commit with the
             # policy that counts them as reported, else a restart would never send them.
-            self._commit([])
+            self.ledger.commit([])
         except Exception:
             log.exception("saving the victim registry at shutdown failed")
-        if self._unsaved:
+        if unsaved := self.ledger.unsaved_victims:
             log.error(
                 "stopping with the disk still full: %d victims' reports (IDs %s) are not "
                 "saved and will not be sent",
-                len(self._unsaved),
-                sorted(self._unsaved),
+                len(unsaved),
+                unsaved,
             )
-        self.camera.close()
-        if self.video is not None:
-            self.video.close()
-        if self.hq is not None:
-            self.hq.close()
-        self.vehicle.close()
+        self.capture.camera.close()
+        self.video.close()
+        self.links.close()
         self.tlog.close()
         self.store.close()

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from companion.config import config_from_dict
+from companion.processing import FrameStats
 from companion.sdnotify import Notifier
-from companion.service import FrameStats, Service
+from companion.service import Service
 from companion.store import Store, StoreError
 from fusion.types import TrackState, Urgency, VictimReport
 from mavlink_io import convert, dialect
@@ -209,14 +210,14 @@ def test_a_full_disk_keeps_the_reports_in_memory_and_writes_them_when_space_retu
             filler += 1
             service.store.set(f"filler{filler}", "x" * 2000)
     with caplog.at_level(logging.ERROR):
-        service._commit([_decision(1)])  # must not raise: the processing thread lives on
-        service._commit([_decision(2)])
+        service.ledger.commit([_decision(1)])  # must not raise: the processing thread lives on
+        service.ledger.commit([_decision(2)])
     assert service.outbox.pending_count == 0  # nothing is sent that is not on disk
     assert service.store.pending() == []
     full = [r for r in caplog.records if r.levelno >= logging.ERROR]
     assert len(full) == 1 and "full" in full[0].getMessage()  # said once, loudly
     db.execute("PRAGMA max_page_count = 1000000")  # space returns
-    service._commit([])  # the next save writes what was kept
+    service.ledger.commit([])  # the next save writes what was kept
     assert sorted(seq for _, seq, _ in service.store.pending()) == [1, 2]
     assert service.outbox.pending_count == 2
     assert service.store.get("report_seq") == 2

@@ -68,7 +68,7 @@ def _fill(service: Service) -> None:
 
 def test_a_stop_right_after_space_returns_saves_the_kept_reports(service: Service) -> None:
     _fill(service)
-    service._commit([_decision(1), _decision(2)])  # kept in memory
+    service.ledger.commit([_decision(1), _decision(2)])  # kept in memory
     service.store._conn().execute("PRAGMA max_page_count = 1000000")  # space returns
     path = service.store.path
     service.close()  # before the periodic save had its turn
@@ -85,7 +85,7 @@ def test_a_stop_on_a_full_disk_says_what_is_lost_without_a_traceback(
 ) -> None:
     _fill(service)
     with caplog.at_level(logging.ERROR):
-        service._commit([_decision(3)])
+        service.ledger.commit([_decision(3)])
         service.close()
     assert not any(r.exc_info for r in caplog.records), "a traceback was logged"
     assert any("not saved" in r.getMessage() and "[3]" in r.getMessage() for r in caplog.records)

@@ -1,0 +1,129 @@
+"""Requests from the ground, answered on the processing thread, which owns the
+tracker, the policy, the detector and the store.
+
+The link threads only queue what they hear (companion/service.py routes it):
+operator actions from the HQ (RESCUE_OPERATOR_ACTION: applied and committed with
+the reports they cause, then acknowledged; a duplicate is acknowledged again,
+never applied twice; one that cannot be applied is acknowledged REJECTED), and
+PARAM_* and COMMAND_LONG: the parameter protocol of the companion's settings
+(companion/params.py over mavlink_io/params.py) and the camera requests of QGC
+(companion/livevideo.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from types import ModuleType
+
+from companion.announcements import Announcer
+from companion.ledger import Ledger
+from companion.links import Links
+from companion.livevideo import LiveVideo
+from companion.reporting import Decision, ReportPolicy
+from fusion.tracker import VictimTracker
+from fusion.types import TrackState
+from mavlink_io import dialect, statustext
+from mavlink_io.codec import MavMessage
+from mavlink_io.params import ParamServer
+from mavlink_io.reliable import Deduplicator
+from mavlink_io.vehicle import VehicleLink
+
+log = logging.getLogger(__name__)
+
+
+class Ground:
+    def __init__(
+        self,
+        *,
+        actions: queue.Queue[MavMessage],
+        requests: queue.Queue[MavMessage],
+        tracker: VictimTracker,
+        policy: ReportPolicy,
+        ledger: Ledger,
+        param_server: ParamServer,
+        video: LiveVideo,
+        vehicle: VehicleLink,
+        links: Links,
+        announcer: Announcer,
+        m: ModuleType,
+    ) -> None:
+        self._actions = actions
+        self._requests = requests
+        self._tracker = tracker
+        self._policy = policy
+        self._ledger = ledger
+        self._param_server = param_server
+        self._video = video
+        self._vehicle = vehicle
+        self._links = links
+        self._announcer = announcer
+        self._m = m
+        self.dedupe = Deduplicator()
+
+    def handle_actions(self) -> None:
+        m = self._m
+        while True:
+            try:
+                msg = self._actions.get_nowait()
+            except queue.Empty:
+                return
+            result = m.RESCUE_ACK_RESULT_ACCEPTED
+            if self.dedupe.check(msg):
+                result = m.RESCUE_ACK_RESULT_DUPLICATE
+            else:
+                decisions = self._apply_action(msg)
+                if decisions is None:
+                    result = m.RESCUE_ACK_RESULT_REJECTED
+                else:
+                    self._ledger.commit(decisions)
+            ack = m.MAVLink_rescue_ack_message(
+                msg.get_srcSystem(),
+                msg.get_srcComponent(),
+                dialect.RESCUE_OPERATOR_ACTION_ID,
+                msg.action_seq,
+                result,
+            )
+            self._links.send_dialect(ack)
+
+    def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
+        """The reports an operator action causes; None if it cannot be applied."""
+        m = self._m
+        now = time.time()
+        if msg.action == m.RESCUE_OPERATOR_ACTION_RESEND:
+            wanted = [v for v in self._tracker.victims() if msg.victim_id in (0, v.victim_id)]
+            return self._policy.requested(wanted, now)
+        states = {
+            m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
+            m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
+            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
+        }
+        state = states.get(msg.action)
+        if state is None:
+            log.warning("operator action %d: unknown action %d", msg.action_seq, msg.action)
+            return None
+        try:
+            event = self._tracker.mark(msg.victim_id, state, now)
+        except (KeyError, ValueError) as exc:
+            log.warning("operator action %d: %s", msg.action_seq, exc)
+            return None
+        log.info("operator marked victim %d %s", msg.victim_id, state.name)
+        return self._policy.decide([event], self._tracker.victims(), now)
+
+    def handle_requests(self) -> None:
+        """Answer parameter and camera requests (a setting changed here is applied
+        here, on the processing thread)."""
+        while True:
+            try:
+                msg = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            self._video.handle(msg)
+            handled = self._param_server.handle(msg)
+            if handled is None:
+                continue
+            for reply in handled.replies:
+                self._vehicle.send(reply)
+            if handled.refused:
+                self._announcer.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
