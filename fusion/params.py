@@ -66,7 +66,12 @@ class TrackerParams:
     gate_chi2: float = 9.21  # Mahalanobis gate, chi-square with 2 dof (9.21 = 99 %)
     process_noise_m2_s: float = 0.002  # position random walk of a static victim, m^2 per second
     hit_log_odds: float = 0.85  # support added by a detection
-    miss_log_odds: float = -0.4  # support added when in view and not detected
+    # Support added when in view and not detected. The people detector finds a body
+    # in view on about a third of the frames (its extra passes take turns): at -0.4 a
+    # whole body in plain view lost more than it gained (0.3 x 0.85 < 0.7 x 0.4) and
+    # was never confirmed (scenario suite, 2026-11-26: recall 0.375 -> 0.5 at -0.2,
+    # no more false victims). A one-frame phantom in view still dies after 12 frames.
+    miss_log_odds: float = -0.2
     confirm_log_odds: float = 2.5  # tentative -> confirmed at or above this
     delete_log_odds: float = -1.5  # tentative tracks die below this
     max_log_odds: float = 8.0  # clamp, so a long-seen track can still lose support
