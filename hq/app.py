@@ -39,7 +39,8 @@ from hq.records import (
     IncomingReport,
     StoreResult,
 )
-from hq.registry import Registry, RegistryBusy, RegistryError, RegistryFull
+from hq.registry import Registry
+from hq.registry_file import RegistryBusy, RegistryError, RegistryFull
 from hq.sbs import SbsServer
 from hq.sources import SourceTable
 from hq.unstored import UnstoredReports
