@@ -33,7 +33,8 @@ from hq.app import HqApp, HqOptions
 from hq.errors import HqError
 from hq.merge import Origins
 from hq.records import OperatorAction
-from hq.registry import Registry, RegistryCorrupt, RegistryError
+from hq.registry import Registry
+from hq.registry_file import RegistryCorrupt, RegistryError
 from hq.sbs import DEFAULT_ADDRESS, SbsServer
 from hq.view import build, hq_victims
 from hq.web.state import LiveRobots

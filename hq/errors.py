@@ -2,7 +2,7 @@
 
 HqError (a fusion.errors.RescueError)
 ├── wire.BadMessage, records.BadRecord   a radio message or a stored row is refused
-├── registry.RegistryError               the registry file cannot be used
+├── registry_file.RegistryError          the registry file cannot be used
 │   ├── RegistryBusy, RegistryCorrupt, RegistryFull
 ├── epoch.EpochError                     the ID epoch file cannot be used
 ├── cli.UsageError                       bad usage or configuration (exit 2)

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from hq.ratelog import RateLimitedLog
-from hq.registry import Registry, RegistryError
+from hq.registry import Registry
+from hq.registry_file import RegistryError
 from mavlink_io import picture
 from mavlink_io.picture import Chunk, Reassembly
 

@@ -19,7 +19,8 @@ from hqproc import ACCEPTED, ACK_TIMEOUT_S, HqProcess, ack_for, acks_waiting, hq
 
 from fusion.types import TrackState, Urgency, VictimReport
 from hq.records import IncomingReport, StoreResult
-from hq.registry import Registry, RegistryFull
+from hq.registry import Registry
+from hq.registry_file import RegistryFull
 from hq.simrobot import SimRobot
 
 _FS_BYTES = 4 * 1024 * 1024

@@ -17,7 +17,8 @@ from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
 from hq import export, merge, table
 from hq.merge import Placed
 from hq.records import IncomingReport, OperatorAction, StoreResult
-from hq.registry import Registry, RegistryError
+from hq.registry import Registry
+from hq.registry_file import RegistryError
 from hq.view import hq_victims
 
 ORIGIN = GlobalOrigin(47.397742, 8.545594, 488.0)

@@ -26,7 +26,8 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any, TypeVar
 
-from hq.registry import Registry, RegistryError
+from hq.registry import Registry
+from hq.registry_file import RegistryError
 from hq.view import HqVictim, hq_victims
 from hq.web.notes import Notes
 from hq.web.state import LiveRobots, robots_lost, snapshot

@@ -48,7 +48,8 @@ from starlette.routing import Route
 
 from hq.errors import HqError
 from hq.records import OperatorAction
-from hq.registry import Registry, RegistryError
+from hq.registry import Registry
+from hq.registry_file import RegistryError
 from hq.view import HqVictim, hq_victims
 from hq.web import access, assets
 from hq.web.downloads import EXPORTS, export_job
