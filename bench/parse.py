@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from mavlink_io.codec import Codec
-from mavlink_io.link import UdpInLink, UdpOutLink
+from mavlink_io.netlinks import UdpInLink, UdpOutLink
 from mavlink_io.vehicle import VehicleLink, VehicleSettings
 
 LINE_RATE_B_S = 92_160  # 921600 baud, 8N1

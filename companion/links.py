@@ -19,8 +19,8 @@ from collections.abc import Callable
 from companion.config import Config
 from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.hqlink import HqLink
-from mavlink_io.link import ReconnectingLink
 from mavlink_io.linkspec import parse_link
+from mavlink_io.reconnect import ReconnectingLink
 from mavlink_io.signing import Signing
 from mavlink_io.tlog import TlogWriter
 from mavlink_io.vehicle import VehicleLink, VehicleSettings

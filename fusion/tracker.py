@@ -41,6 +41,10 @@ Per ``update`` (one processed camera frame, with or without detections):
    likely a stray fix of that victim); it waits until it separates, or dies. It is
    not fused into the victim either: clutter next to a victim must not pull it.
 
+The gating, assignment and closeness tests of steps 2, 3 and 6 are
+``fusion.association``; a track's state and its two outward forms (the ``Victim``
+snapshot, the stored ``TrackRecord``) are ``fusion.track``.
+
 Identity: every track has a ``track_id``; a victim ID (``victim_id``) is given only
 on confirmation, from this instance's counter starting at ``first_id``, so the HQ
 sees victims 1, 2, 3 rather than the numbers of clutter that never confirmed.
@@ -56,75 +60,25 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
-from scipy.optimize import linear_sum_assignment
 
 from fusion import registry as codec
+from fusion.association import associate, closest_pair, near, same_point
 from fusion.camera import FloatArray
-from fusion.kalman import kalman_update, mahalanobis2
+from fusion.kalman import kalman_update
 from fusion.params import TrackerParams
-from fusion.registry import EventKind, TrackEvent, Victim, moved_beyond
-from fusion.types import Cov2, Observation, TrackState, Urgency
+from fusion.registry import EventKind, TrackEvent, Victim
+from fusion.track import Track, new_filter, record_of, track_of, victim_of
+from fusion.types import Observation, TrackState, Urgency
 from fusion.urgency import classify, weighted_median
-
-__all__ = [
-    "EventKind",
-    "TrackEvent",
-    "Victim",
-    "VictimTracker",
-    "kalman_update",
-    "mahalanobis2",
-    "moved_beyond",
-]
 
 log = logging.getLogger(__name__)
 
 _ABSORBING = (TrackState.RESCUED, TrackState.FALSE_ALARM)
 _CONFIRMED = (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
 _OPERATOR_STATES = (TrackState.RESCUED, TrackState.FALSE_ALARM, TrackState.CONFIRMED)
-_INFEASIBLE = 1e12  # cost of a pair outside the gate
-
-
-@dataclass(eq=False)
-class _Track:
-    track_id: int
-    kf: KalmanFilter
-    state: TrackState
-    log_odds: float
-    observations: int
-    first_seen_unix_s: float
-    last_seen_unix_s: float
-    t_filter_unix_s: float  # the time the filter's x, P refer to
-    history: deque[tuple[float, float, float]]  # (t_unix_s, visibility_pct, quality)
-    urgency: Urgency
-    visibility_pct: float
-    victim_id: int = 0  # 0 until confirmed
-    merged_into: int | None = None
-    matched: bool = field(default=False, repr=False)  # in the current update
-
-    @property
-    def x(self) -> FloatArray:
-        return self.kf.x.reshape(2)
-
-
-def _new_filter(x: FloatArray, p: FloatArray) -> KalmanFilter:
-    """A filter holding one victim's state x and covariance P. Its model (a static
-    target, F = I; the position observed, H = I; Q = q dt I) is applied to all
-    tracks at once by ``VictimTracker._predict`` and ``kalman_update`` (the filter's
-    own predict/update are never called; a test checks the batch equals them)."""
-    kf = KalmanFilter(dim_x=2, dim_z=2)
-    kf.x = np.array(x, dtype=float).reshape(2, 1)
-    kf.P = np.array(p, dtype=float)
-    return kf
-
-
-def _cov2(p: FloatArray) -> Cov2:
-    s = 0.5 * (p + p.T)
-    return ((float(s[0, 0]), float(s[0, 1])), (float(s[0, 1]), float(s[1, 1])))
 
 
 class VictimTracker:
@@ -137,22 +91,22 @@ class VictimTracker:
         self._params = params
         self._next_victim_id = first_id
         self._next_track_id = 1
-        self._tracks: dict[int, _Track] = {}  # by track_id, in creation order
-        self._by_victim: dict[int, _Track] = {}
+        self._tracks: dict[int, Track] = {}  # by track_id, in creation order
+        self._by_victim: dict[int, Track] = {}
 
     # -- queries -----------------------------------------------------------------
 
     def victims(self, include_tentative: bool = False) -> list[Victim]:
         """Snapshots of all victims (every state but tentative, unless asked)."""
         return [
-            self._victim(t)
+            victim_of(t)
             for t in self._tracks.values()
             if include_tentative or t.state != TrackState.TENTATIVE
         ]
 
     def victim(self, victim_id: int) -> Victim:
         """The snapshot of one victim; KeyError when unknown."""
-        return self._victim(self._lookup(victim_id))
+        return victim_of(self._lookup(victim_id))
 
     def resolve(self, victim_id: int) -> int:
         """The surviving victim ID for an ID that may have been merged away."""
@@ -161,30 +115,12 @@ class VictimTracker:
             track = self._by_victim[track.merged_into]
         return track.victim_id
 
-    def _lookup(self, victim_id: int) -> _Track:
+    def _lookup(self, victim_id: int) -> Track:
         try:
             return self._by_victim[victim_id]
         except KeyError:
             known = ", ".join(str(v) for v in self._by_victim) or "none"
             raise KeyError(f"no victim with id {victim_id} (known ids: {known})") from None
-
-    def _victim(self, t: _Track) -> Victim:
-        x = t.x
-        return Victim(
-            victim_id=t.victim_id,
-            state=t.state,
-            urgency=t.urgency,
-            visibility_pct=t.visibility_pct,
-            north_m=float(x[0]),
-            east_m=float(x[1]),
-            cov_ne_m2=_cov2(t.kf.P),
-            observations=t.observations,
-            first_seen_unix_s=t.first_seen_unix_s,
-            last_seen_unix_s=t.last_seen_unix_s,
-            log_odds=t.log_odds,
-            merged_into=t.merged_into,
-            track_id=t.track_id,
-        )
 
     # -- the update cycle --------------------------------------------------------
 
@@ -202,7 +138,7 @@ class VictimTracker:
         for t in live:
             t.matched = False
         p = self._predict(live, now_unix_s)
-        pairs, d2 = self._associate(live, p, observations)
+        pairs, d2 = associate(live, p, observations, self._params)
         self._correct(live, p, observations, pairs)
         for i, j in pairs:
             self._hit(live[i], observations[j], events)
@@ -214,7 +150,7 @@ class VictimTracker:
 
     def _spawn(
         self,
-        live: list[_Track],
+        live: list[Track],
         observations: Sequence[Observation],
         pairs: list[tuple[int, int]],
         d2: np.ndarray,
@@ -225,9 +161,9 @@ class VictimTracker:
         detection of it; absorbed, if that track is RESCUED/FALSE_ALARM) and those
         within ``merge_chi2`` of another observation starting a track in this frame."""
         paired_obs = {j for _, j in pairs}
-        near = self._near(live, observations)
+        near_pairs = near(live, observations, self._params.max_match_distance_m)
         excluded = (
-            np.any((d2 <= self._params.new_track_exclusion_chi2) & near, axis=0)
+            np.any((d2 <= self._params.new_track_exclusion_chi2) & near_pairs, axis=0)
             if len(live)
             else np.zeros(len(observations), dtype=bool)
         )
@@ -238,13 +174,13 @@ class VictimTracker:
             if excluded[j]:
                 log.debug("observation at (%.2f, %.2f) near a track", obs.north_m, obs.east_m)
                 continue
-            if any(self._same_point(obs, other) for other in started):
+            if any(same_point(obs, other, self._params) for other in started):
                 log.debug("duplicate new detection at (%.2f, %.2f)", obs.north_m, obs.east_m)
                 continue
             started.append(obs)
             self._start(obs, now_unix_s)
 
-    def _predict(self, live: list[_Track], now_unix_s: float) -> FloatArray:
+    def _predict(self, live: list[Track], now_unix_s: float) -> FloatArray:
         """Predict every track to ``now_unix_s``; returns the stacked P (T, 2, 2).
 
         With F = I the filter's predict (x = F x, P = F P F^T + Q) reduces to
@@ -265,43 +201,9 @@ class VictimTracker:
             t.t_filter_unix_s = max(t.t_filter_unix_s, now_unix_s)
         return p
 
-    def _associate(
-        self, live: list[_Track], p: FloatArray, observations: Sequence[Observation]
-    ) -> tuple[list[tuple[int, int]], np.ndarray]:
-        """Gated Hungarian assignment; returns (track index, obs index) pairs and the
-        matrix of squared Mahalanobis distances."""
-        n_t, n_o = len(live), len(observations)
-        if n_t == 0 or n_o == 0:
-            return [], np.zeros((n_t, n_o))
-        x = np.array([t.x for t in live])  # (T, 2)
-        z = np.array([(o.north_m, o.east_m) for o in observations])  # (O, 2)
-        r = np.array([o.cov_ne_m2 for o in observations])  # (O, 2, 2)
-        # S = P + R and y = z - x for every pair
-        d2, det = mahalanobis2(z[None, :, :] - x[:, None, :], p[:, None] + r[None, :])
-        gated = (d2 <= self._params.gate_chi2) & self._near(live, observations)
-        cost = np.where(gated, d2 + np.log(det), _INFEASIBLE)
-        return _assign(gated, cost), d2
-
-    def _near(self, live: list[_Track], observations: Sequence[Observation]) -> np.ndarray:
-        """(T, O): which track-observation pairs are within max_match_distance_m."""
-        if not live or not observations:
-            return np.zeros((len(live), len(observations)), dtype=bool)
-        x = np.array([t.x for t in live])
-        z = np.array([(o.north_m, o.east_m) for o in observations])
-        dist = np.linalg.norm(z[None, :, :] - x[:, None, :], axis=-1)
-        return np.asarray(dist <= self._params.max_match_distance_m)
-
-    def _same_point(self, a: Observation, b: Observation) -> bool:
-        """Two observations of one frame that are one victim detected twice."""
-        dz = np.array([a.north_m - b.north_m, a.east_m - b.east_m])
-        if float(np.hypot(*dz)) > self._params.max_match_distance_m:
-            return False
-        d2, _ = mahalanobis2(dz, np.array(a.cov_ne_m2) + np.array(b.cov_ne_m2))
-        return float(d2) <= self._params.merge_chi2
-
     @staticmethod
     def _correct(
-        live: list[_Track],
+        live: list[Track],
         p: FloatArray,
         observations: Sequence[Observation],
         pairs: list[tuple[int, int]],
@@ -320,7 +222,7 @@ class VictimTracker:
             live[i].kf.x = x_new[k].reshape(2, 1)
             live[i].kf.P = p_new[k]
 
-    def _hit(self, t: _Track, obs: Observation, events: list[TrackEvent]) -> None:
+    def _hit(self, t: Track, obs: Observation, events: list[TrackEvent]) -> None:
         """Bookkeeping of a matched track (its filter is already updated)."""
         t.matched = True
         t.observations += 1
@@ -332,12 +234,12 @@ class VictimTracker:
         t.log_odds = min(p.max_log_odds, t.log_odds + p.hit_log_odds)
         if t.state == TrackState.NOT_SEEN_RECENTLY:
             t.state = TrackState.CONFIRMED
-            events.append(TrackEvent(EventKind.SEEN_AGAIN, self._victim(t)))
+            events.append(TrackEvent(EventKind.SEEN_AGAIN, victim_of(t)))
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
-            events.append(TrackEvent(EventKind.URGENCY_CHANGED, self._victim(t)))
+            events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
 
-    def _reclassify(self, t: _Track) -> bool:
+    def _reclassify(self, t: Track) -> bool:
         """Refresh the visibility estimate and the class; True if the class changed."""
         t.visibility_pct = weighted_median([h[1] for h in t.history], [h[2] for h in t.history])
         urgency = classify(t.urgency, t.visibility_pct, self._params.urgency_hysteresis_pct)
@@ -346,9 +248,9 @@ class VictimTracker:
         return changed
 
     def _start(self, obs: Observation, now_unix_s: float) -> None:
-        t = _Track(
+        t = Track(
             track_id=self._next_track_id,
-            kf=_new_filter(np.array([obs.north_m, obs.east_m]), np.array(obs.cov_ne_m2)),
+            kf=new_filter(np.array([obs.north_m, obs.east_m]), np.array(obs.cov_ne_m2)),
             state=TrackState.TENTATIVE,
             log_odds=self._params.hit_log_odds,
             observations=1,
@@ -367,7 +269,7 @@ class VictimTracker:
         self._tracks[t.track_id] = t
 
     def _negative_evidence(
-        self, live: list[_Track], in_view: Callable[[float, float], bool]
+        self, live: list[Track], in_view: Callable[[float, float], bool]
     ) -> None:
         miss = self._params.miss_log_odds
         for t in live:
@@ -376,13 +278,13 @@ class VictimTracker:
                 if in_view(float(x[0]), float(x[1])):
                     t.log_odds += miss
 
-    def _life_cycle(self, live: list[_Track], now_unix_s: float, events: list[TrackEvent]) -> None:
+    def _life_cycle(self, live: list[Track], now_unix_s: float, events: list[TrackEvent]) -> None:
         p = self._params
         confirmed = [t for t in live if t.state in _CONFIRMED]
         for t in live:
             if t.state == TrackState.TENTATIVE:
                 if t.log_odds >= p.confirm_log_odds:
-                    if _closest_pair([t], confirmed, p.merge_chi2, p.max_match_distance_m) is None:
+                    if closest_pair([t], confirmed, p.merge_chi2, p.max_match_distance_m) is None:
                         self._confirm(t, events)
                         confirmed.append(t)
                     # else: a stray fix of a known victim; it waits, tentative, until
@@ -397,15 +299,15 @@ class VictimTracker:
                 and now_unix_s - t.last_seen_unix_s > p.not_seen_recently_s
             ):
                 t.state = TrackState.NOT_SEEN_RECENTLY
-                events.append(TrackEvent(EventKind.NOT_SEEN_RECENTLY, self._victim(t)))
+                events.append(TrackEvent(EventKind.NOT_SEEN_RECENTLY, victim_of(t)))
 
-    def _confirm(self, t: _Track, events: list[TrackEvent]) -> None:
+    def _confirm(self, t: Track, events: list[TrackEvent]) -> None:
         t.state = TrackState.CONFIRMED
         t.victim_id = self._next_victim_id
         self._next_victim_id += 1
         self._by_victim[t.victim_id] = t
         log.info("victim %d confirmed at (%.2f, %.2f)", t.victim_id, *t.x)
-        events.append(TrackEvent(EventKind.CONFIRMED, self._victim(t)))
+        events.append(TrackEvent(EventKind.CONFIRMED, victim_of(t)))
 
     # -- merging -------------------------------------------------------------------
 
@@ -413,14 +315,14 @@ class VictimTracker:
         while True:
             confirmed = [t for t in self._tracks.values() if t.state in _CONFIRMED]
             p = self._params
-            pair = _closest_pair(confirmed, confirmed, p.merge_chi2, p.max_match_distance_m)
+            pair = closest_pair(confirmed, confirmed, p.merge_chi2, p.max_match_distance_m)
             if pair is None:
                 return
             a, b = pair
             older, younger = (a, b) if a.victim_id < b.victim_id else (b, a)
             self._fuse(older, younger, events)
 
-    def _fuse(self, older: _Track, younger: _Track, events: list[TrackEvent]) -> None:
+    def _fuse(self, older: Track, younger: Track, events: list[TrackEvent]) -> None:
         """Fold the confirmed ``younger`` into ``older``; younger becomes MERGED."""
         # Independent estimates of one point, fused in information form:
         # P = (P1^-1 + P2^-1)^-1, x = P (P1^-1 x1 + P2^-1 x2)
@@ -440,9 +342,9 @@ class VictimTracker:
         younger.state = TrackState.MERGED
         younger.merged_into = older.victim_id
         log.info("victim %d merged into %d", younger.victim_id, older.victim_id)
-        events.append(TrackEvent(EventKind.MERGED, self._victim(younger)))
+        events.append(TrackEvent(EventKind.MERGED, victim_of(younger)))
         if self._reclassify(older) and older.state == TrackState.CONFIRMED:
-            events.append(TrackEvent(EventKind.URGENCY_CHANGED, self._victim(older)))
+            events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(older)))
 
     # -- operator ------------------------------------------------------------------
 
@@ -457,7 +359,7 @@ class VictimTracker:
         track = self._by_victim[self.resolve(victim_id)]
         log.info("operator marked victim %d %s at %.3f", track.victim_id, state.name, now_unix_s)
         track.state = state
-        return TrackEvent(EventKind.OPERATOR, self._victim(track))
+        return TrackEvent(EventKind.OPERATOR, victim_of(track))
 
     # -- persistence ---------------------------------------------------------------
 
@@ -466,7 +368,7 @@ class VictimTracker:
         return codec.encode(
             self._next_victim_id,
             self._next_track_id,
-            [_record(t) for t in self._tracks.values()],
+            [record_of(t) for t in self._tracks.values()],
         )
 
     @classmethod
@@ -479,82 +381,9 @@ class VictimTracker:
         tracker = cls(params, first_id=next_victim_id)
         tracker._next_track_id = next_track_id
         for rec in records:
-            t = _Track(
-                track_id=rec.track_id,
-                kf=_new_filter(np.array(rec.x), np.array(rec.p)),
-                state=rec.state,
-                log_odds=rec.log_odds,
-                observations=rec.observations,
-                first_seen_unix_s=rec.first_seen_unix_s,
-                last_seen_unix_s=rec.last_seen_unix_s,
-                t_filter_unix_s=rec.t_filter_unix_s,
-                history=deque(rec.history, maxlen=params.urgency_window),
-                urgency=rec.urgency,
-                visibility_pct=rec.visibility_pct,
-                victim_id=rec.victim_id,
-                merged_into=rec.merged_into,
-            )
+            t = track_of(rec, params.urgency_window)
             tracker._tracks[t.track_id] = t
             if t.victim_id:
                 tracker._by_victim[t.victim_id] = t
         codec.check_links(tracker._by_victim.keys(), [r.merged_into for r in records])
         return tracker
-
-
-def _record(t: _Track) -> codec.TrackRecord:
-    return codec.TrackRecord(
-        track_id=t.track_id,
-        victim_id=t.victim_id,
-        state=t.state,
-        x=(float(t.x[0]), float(t.x[1])),
-        p=((float(t.kf.P[0, 0]), float(t.kf.P[0, 1])), (float(t.kf.P[1, 0]), float(t.kf.P[1, 1]))),
-        t_filter_unix_s=t.t_filter_unix_s,
-        log_odds=t.log_odds,
-        observations=t.observations,
-        first_seen_unix_s=t.first_seen_unix_s,
-        last_seen_unix_s=t.last_seen_unix_s,
-        history=tuple(t.history),
-        urgency=t.urgency,
-        visibility_pct=t.visibility_pct,
-        merged_into=t.merged_into,
-    )
-
-
-def _assign(gated: np.ndarray, cost: np.ndarray) -> list[tuple[int, int]]:
-    """Minimum-cost assignment among gated pairs. Pairs alone in their row and
-    column are taken directly; the rest go through linear_sum_assignment."""
-    rows_n = gated.sum(axis=1)
-    cols_n = gated.sum(axis=0)
-    lone = gated & (rows_n[:, None] == 1) & (cols_n[None, :] == 1)
-    pairs = [(int(i), int(j)) for i, j in zip(*np.nonzero(lone), strict=True)]
-    rows = np.nonzero((rows_n > 0) & ~lone.any(axis=1))[0]
-    cols = np.nonzero((cols_n > 0) & ~lone.any(axis=0))[0]
-    if len(rows) and len(cols):
-        sub = cost[np.ix_(rows, cols)]
-        ri, ci = linear_sum_assignment(sub)
-        for i, j in zip(ri, ci, strict=True):
-            if gated[rows[i], cols[j]]:
-                pairs.append((int(rows[i]), int(cols[j])))
-    return pairs
-
-
-def _closest_pair(
-    first: list[_Track], second: list[_Track], merge_chi2: float, max_distance_m: float
-) -> tuple[_Track, _Track] | None:
-    """The pair (one from each list, two different tracks) with the smallest
-    d^2 = dx^T (P1 + P2)^-1 dx, if within merge_chi2 and max_distance_m."""
-    if not first or not second:
-        return None
-    x1, x2 = np.array([t.x for t in first]), np.array([t.x for t in second])
-    p1, p2 = np.array([t.kf.P for t in first]), np.array([t.kf.P for t in second])
-    dx = x1[:, None, :] - x2[None, :, :]
-    d2, _ = mahalanobis2(dx, p1[:, None] + p2[None, :])
-    ids1 = np.array([t.track_id for t in first])
-    ids2 = np.array([t.track_id for t in second])
-    d2[ids1[:, None] == ids2[None, :]] = np.inf  # a track is not its own twin
-    d2[np.linalg.norm(dx, axis=-1) > max_distance_m] = np.inf  # too far to be one person
-    k = int(np.argmin(d2))
-    i, j = divmod(k, d2.shape[1])
-    if d2[i, j] > merge_chi2:
-        return None
-    return first[i], second[j]

@@ -1,7 +1,7 @@
 """Links for a ground station of many robots: a UDP hub that answers every robot,
 and the standard links behind the same seam (rescue-hq uses these).
 
-A plain ``udpin`` link (mavlink_io.link.UdpInLink, like mavutil) replies to the
+A plain ``udpin`` link (mavlink_io.netlinks.UdpInLink, like mavutil) replies to the
 address that spoke last. That is right for one ground station behind one router,
 but when several robots send straight to the HQ's port, an acknowledgement for
 robot 1 would go to robot 2. ``UdpHubLink`` remembers every peer heard within
@@ -25,8 +25,9 @@ import time
 from typing import Protocol
 
 from mavlink_io.errors import LinkError
-from mavlink_io.link import ReconnectingLink, bound_address
+from mavlink_io.link import bound_address
 from mavlink_io.linkspec import LinkSpec
+from mavlink_io.reconnect import ReconnectingLink
 
 log = logging.getLogger(__name__)
 

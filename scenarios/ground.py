@@ -16,8 +16,8 @@ from typing import Any
 from mavlink_io import tunnel
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import RESCUE_VICTIM_REPORT_ID
-from mavlink_io.link import open_link
 from mavlink_io.linkspec import parse_link
+from mavlink_io.reconnect import open_link
 
 MAV_TYPE_GCS = 6
 MAV_AUTOPILOT_INVALID = 8

@@ -26,8 +26,9 @@ import tty
 from collections.abc import Callable, Sequence
 
 from mavlink_io.errors import LinkError
-from mavlink_io.link import Link, open_link
+from mavlink_io.link import Link
 from mavlink_io.linkspec import LinkSpec, parse_link
+from mavlink_io.reconnect import open_link
 from scenarios.autopilot import Autopilot
 from scenarios.motion import SimClock, Trajectory, TruePose, route_of
 from scenarios.world import PointNE, World

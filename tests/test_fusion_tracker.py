@@ -13,8 +13,10 @@ from filterpy.kalman import KalmanFilter
 
 from fusion.errors import FusionError
 from fusion.geodesy import geodetic_to_ned
+from fusion.kalman import kalman_update
 from fusion.params import TrackerParams
-from fusion.tracker import EventKind, VictimTracker, kalman_update, moved_beyond
+from fusion.registry import EventKind, moved_beyond
+from fusion.tracker import VictimTracker
 from fusion.types import GlobalOrigin, Observation, TrackState, Urgency
 from fusion.urgency import classify, weighted_median
 

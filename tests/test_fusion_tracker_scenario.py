@@ -16,7 +16,8 @@ from fusion.camera import CameraModel, Intrinsics, Mount, rotation_zyx
 from fusion.errors import GeolocationRejected
 from fusion.geolocate import geolocate, in_view
 from fusion.params import GeolocationParams, TrackerParams
-from fusion.tracker import EventKind, TrackEvent, VictimTracker
+from fusion.registry import EventKind, TrackEvent
+from fusion.tracker import VictimTracker
 from fusion.types import Observation, PoseSample, TrackState
 
 GEO = GeolocationParams()

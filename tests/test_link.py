@@ -14,17 +14,11 @@ from pathlib import Path
 import pytest
 
 from mavlink_io.errors import LinkError
-from mavlink_io.link import (
-    Link,
-    ReconnectingLink,
-    SerialLink,
-    TcpInLink,
-    TcpLink,
-    UdpInLink,
-    UdpOutLink,
-    open_link,
-)
+from mavlink_io.link import Link
 from mavlink_io.linkspec import LinkSpec, parse_link
+from mavlink_io.netlinks import TcpInLink, TcpLink, UdpInLink, UdpOutLink
+from mavlink_io.reconnect import ReconnectingLink, open_link
+from mavlink_io.seriallink import SerialLink
 
 
 @dataclass

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from mavlink_io import dialect
 from mavlink_io.codec import Codec
-from mavlink_io.link import SerialLink
+from mavlink_io.seriallink import SerialLink
 
 BADDATA = "tlogs/ardusub_real_2023-04-18_baddata.tlog"
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from mavlink_io import statustext
-from mavlink_io.link import UdpOutLink
+from mavlink_io.netlinks import UdpOutLink
 from mavlink_io.vehicle import VehicleLink, VehicleSettings
 
 MAVPROXY = Path(sys.executable).with_name("mavproxy.py")

@@ -12,7 +12,7 @@ import pytest
 from pymavlink import mavutil
 
 from mavlink_io.codec import Codec
-from mavlink_io.link import UdpInLink
+from mavlink_io.netlinks import UdpInLink
 from mavlink_io.tunnel import wrap
 from mavlink_io.vehicle import VehicleLink, VehicleSettings
 

@@ -21,7 +21,7 @@ from fusion.registry import Victim
 from fusion.types import TrackState, Urgency
 from mavlink_io import convert
 from mavlink_io.codec import Codec, MavMessage
-from mavlink_io.link import UdpInLink, UdpOutLink
+from mavlink_io.netlinks import UdpInLink, UdpOutLink
 from mavlink_io.vehicle import VehicleLink, VehicleSettings
 from tests.fieldfuzz import random_message
 

@@ -13,8 +13,9 @@ from collections.abc import Iterator
 import pytest
 
 from mavlink_io.codec import MavMessage
-from mavlink_io.link import ReconnectingLink, TcpInLink
 from mavlink_io.linkspec import parse_link
+from mavlink_io.netlinks import TcpInLink
+from mavlink_io.reconnect import ReconnectingLink
 from mavlink_io.vehicle import VehicleLink, VehicleSettings
 from scenarios.autopilot import ATTITUDE, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, SIM_STATE
 from scenarios.rover import SimRover

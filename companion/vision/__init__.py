@@ -57,7 +57,8 @@ def make_detector(config: DetectorConfig, single_images: bool = False) -> Detect
             config.model_dir,
         )
     if config.backend == "classic":
-        from companion.vision.classic import ClassicDetector, ClassicParams
+        from companion.vision.classic import ClassicDetector
+        from companion.vision.classic_params import ClassicParams
 
         params = ClassicParams(work_width_px=config.work_width_px)
         return ClassicDetector(params, enhancer, config.min_score)

@@ -295,11 +295,6 @@ def text_like_labels(stats: np.ndarray, min_neighbours: int = 2) -> set[int]:
     return text
 
 
-def equivalent_size_m(area_px: float, metres_per_px: float) -> float:
-    """The side of a square with the same floor area (m)."""
-    return math.sqrt(max(area_px, 0.0)) * metres_per_px
-
-
 @dataclass(frozen=True)
 class FloorShape:
     """An outline measured on the floor (metres), parts on the frame border left out."""

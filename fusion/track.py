@@ -1,0 +1,112 @@
+"""One victim track's state, and the two forms it leaves the tracker in: the
+``Victim`` snapshot the rest of the program reads and the ``TrackRecord`` the
+registry stores (``fusion.registry`` encodes and validates it)."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from fusion.camera import FloatArray
+from fusion.registry import TrackRecord, Victim
+from fusion.types import Cov2, TrackState, Urgency
+
+
+@dataclass(eq=False)
+class Track:
+    track_id: int
+    kf: KalmanFilter
+    state: TrackState
+    log_odds: float
+    observations: int
+    first_seen_unix_s: float
+    last_seen_unix_s: float
+    t_filter_unix_s: float  # the time the filter's x, P refer to
+    history: deque[tuple[float, float, float]]  # (t_unix_s, visibility_pct, quality)
+    urgency: Urgency
+    visibility_pct: float
+    victim_id: int = 0  # 0 until confirmed
+    merged_into: int | None = None
+    matched: bool = field(default=False, repr=False)  # in the current update
+
+    @property
+    def x(self) -> FloatArray:
+        return self.kf.x.reshape(2)
+
+
+def new_filter(x: FloatArray, p: FloatArray) -> KalmanFilter:
+    """A filter holding one victim's state x and covariance P. Its model (a static
+    target, F = I; the position observed, H = I; Q = q dt I) is applied to all
+    tracks at once by ``VictimTracker._predict`` and ``kalman_update`` (the filter's
+    own predict/update are never called; a test checks the batch equals them)."""
+    kf = KalmanFilter(dim_x=2, dim_z=2)
+    kf.x = np.array(x, dtype=float).reshape(2, 1)
+    kf.P = np.array(p, dtype=float)
+    return kf
+
+
+def _cov2(p: FloatArray) -> Cov2:
+    s = 0.5 * (p + p.T)
+    return ((float(s[0, 0]), float(s[0, 1])), (float(s[0, 1]), float(s[1, 1])))
+
+
+def victim_of(t: Track) -> Victim:
+    """The frozen snapshot of a track."""
+    x = t.x
+    return Victim(
+        victim_id=t.victim_id,
+        state=t.state,
+        urgency=t.urgency,
+        visibility_pct=t.visibility_pct,
+        north_m=float(x[0]),
+        east_m=float(x[1]),
+        cov_ne_m2=_cov2(t.kf.P),
+        observations=t.observations,
+        first_seen_unix_s=t.first_seen_unix_s,
+        last_seen_unix_s=t.last_seen_unix_s,
+        log_odds=t.log_odds,
+        merged_into=t.merged_into,
+        track_id=t.track_id,
+    )
+
+
+def record_of(t: Track) -> TrackRecord:
+    """The track as stored: everything needed to continue it exactly."""
+    return TrackRecord(
+        track_id=t.track_id,
+        victim_id=t.victim_id,
+        state=t.state,
+        x=(float(t.x[0]), float(t.x[1])),
+        p=((float(t.kf.P[0, 0]), float(t.kf.P[0, 1])), (float(t.kf.P[1, 0]), float(t.kf.P[1, 1]))),
+        t_filter_unix_s=t.t_filter_unix_s,
+        log_odds=t.log_odds,
+        observations=t.observations,
+        first_seen_unix_s=t.first_seen_unix_s,
+        last_seen_unix_s=t.last_seen_unix_s,
+        history=tuple(t.history),
+        urgency=t.urgency,
+        visibility_pct=t.visibility_pct,
+        merged_into=t.merged_into,
+    )
+
+
+def track_of(rec: TrackRecord, urgency_window: int) -> Track:
+    """The track a stored record continues (the record is already validated)."""
+    return Track(
+        track_id=rec.track_id,
+        kf=new_filter(np.array(rec.x), np.array(rec.p)),
+        state=rec.state,
+        log_odds=rec.log_odds,
+        observations=rec.observations,
+        first_seen_unix_s=rec.first_seen_unix_s,
+        last_seen_unix_s=rec.last_seen_unix_s,
+        t_filter_unix_s=rec.t_filter_unix_s,
+        history=deque(rec.history, maxlen=urgency_window),
+        urgency=rec.urgency,
+        visibility_pct=rec.visibility_pct,
+        victim_id=rec.victim_id,
+        merged_into=rec.merged_into,
+    )
