@@ -26,20 +26,14 @@ area a whole lying adult would cover at the body's floor point (the camera
 geometry), or, without a geometry (a photo), by the body's own extent from its
 landmarks (``Detection.expected_area_px``).
 
-Where the body lies: the floor point is the centre of the body's floor footprint,
-not the image centroid of its mask. With landmarks, every body point is taken
-to a plane ``joint_height_m`` above the floor (a lying adult's joints are about
-0.1 m up) and the footprint's centre is their mean; a standing body (its upper
-points do not reach that plane in range, or stand far from its hips) is placed at
-its feet. Without landmarks, the detector's hip centre is used; a lone part is
-placed where its box meets the floor.
+Where the body lies: ``floorpoint.py``.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -48,6 +42,15 @@ import numpy as np
 from companion.vision import models, ssd
 from companion.vision.base import FrameGeometry
 from companion.vision.enhance import Enhancer
+from companion.vision.floorpoint import (
+    ANKLES,
+    HIPS,
+    KNEES,
+    N_BODY_POINTS,
+    SHOULDERS,
+    FloorParams,
+    floor_pixel,
+)
 from companion.vision.tflite import Model, RotatedRect, letterbox, to_range
 from fusion.types import Detection
 
@@ -56,9 +59,6 @@ PALM_SPEC = ssd.SsdSpec(192, (8, 16, 16, 16), 7, 0.5)
 FACE_SPEC = ssd.SsdSpec(192, (4,), 6, 0.5, interpolated_scale=False)
 
 LANDMARK_PX = 256
-N_BODY_POINTS = 33
-# BlazePose indices: nose 0, shoulders 11/12, hips 23/24, knees 25/26, ankles 27/28.
-_SHOULDERS, _HIPS, _KNEES, _ANKLES = (11, 12), (23, 24), (25, 26), (27, 28)
 
 # Proportions of an adult (share of standing height): for a body's own extent in a
 # photo, and for the whole body behind a lone face or hand.
@@ -90,13 +90,7 @@ class PeopleParams:
     centre_tile_share: float = 0.75
     far_band_mpp: float = 0.0045  # floor farther than this many metres per pixel
     tile_min_px: int = 160  # a tile's height at least; its width is twice its height
-    joint_height_m: float = 0.10  # a lying adult's joints above the floor
-    contact_height_m: float = 0.03  # where a lying body's near side leaves the floor
-    body_width_m: float = 0.35  # a lying adult across the view (shoulders, hips)
-    max_half_extent_m: float = 0.9  # half a lying adult's length
-    joint_span_m: float = 1.45  # nose to ankles of a lying adult
-    landmark_seen: float = 0.5  # a landmark counts as in sight from this visibility
-    standing_height_m: float = 1.0  # nose this far above the ankles: standing
+    floor: FloorParams = field(default_factory=FloorParams)  # where a body lies (floorpoint.py)
     silhouette_fill: float = 0.75  # body silhouette / length x width rectangle
     # The models see better on the enhanced frame only when the scene is dark (on
     # well-lit real frames enhancement costs recall: bench/real_images.py).
@@ -427,132 +421,16 @@ class PeopleDetector:
             return None
         return body
 
-    def _floor_pixel(
-        self, b: _Body, geometry: FrameGeometry | None, w: int, h: int
-    ) -> tuple[float, float, float | None]:
-        """The pixel of the body's floor point (see the module docstring), and the
-        body's heading (NED yaw, feet to head) where its landmarks show it lying."""
-        p = self.params
-        heading = None
-        x0, _y0, x1, y1 = b.box
-        if geometry is None:
-            if b.points is not None:
-                u = float(np.clip(b.points[:, 0].mean(), 0, w - 1))
-                return u, float(np.clip(y1 - 1, 0, h - 1)), None
-            return (x0 + x1) / 2, min(y1, h) - 0.5, None
-        centre = np.array([np.nan, np.nan])
-        if b.points is not None:
-            joints = geometry.plane_ne_m(b.points, p.joint_height_m)
-            lying = not self._standing(b.points, geometry)
-            finite = joints[np.all(np.isfinite(joints), axis=1)]
-            if lying and len(finite) >= N_BODY_POINTS // 2:
-                heading = self._heading(b, joints)
-                centre = self._from_contact(b, geometry, finite, h)
-                if not np.all(np.isfinite(centre)):
-                    centre = finite.mean(axis=0)
-            else:
-                feet = geometry.floor_ne_m(b.points[list(_ANKLES)])
-                feet = feet[np.all(np.isfinite(feet), axis=1)]
-                if len(feet):
-                    centre = feet.mean(axis=0)
-        elif b.part:
-            centre = geometry.floor_ne_m(np.array([[(x0 + x1) / 2, min(y1, h) - 0.5]]))[0]
-        else:
-            centre = self._from_contact(b, geometry, None, h)
-            if not np.all(np.isfinite(centre)):
-                centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
-        if np.all(np.isfinite(centre)):
-            px = geometry.pixels_of_floor(centre.reshape(1, 2))
-            if px is not None and np.all(np.isfinite(px[0])):
-                return float(px[0, 0]), float(px[0, 1]), heading
-        return (x0 + x1) / 2, min(y1, h) - 0.5, heading
-
-    def _heading(self, b: _Body, joints_ne: np.ndarray) -> float | None:
-        """The body's axis (NED yaw, feet to head) from the first pair of body points
-        that are both in sight: nose-ankles, shoulders-hips, hips-ankles. The model
-        places hidden (buried) points by guesswork, so those are never used."""
-        if b.seen is None:
-            return None
-        seen = b.seen >= self.params.landmark_seen
-        for head_end, foot_end in (((0,), _ANKLES), (_SHOULDERS, _HIPS), (_HIPS, _ANKLES)):
-            idx = [*head_end, *foot_end]
-            if not (np.all(seen[idx]) and np.all(np.isfinite(joints_ne[idx]))):
-                continue
-            d_ne = joints_ne[list(head_end)].mean(axis=0) - joints_ne[list(foot_end)].mean(axis=0)
-            if float(np.hypot(*d_ne)) > 1e-3:
-                return math.atan2(float(d_ne[1]), float(d_ne[0]))
-        return None
-
-    def _standing(self, points: np.ndarray, geometry: FrameGeometry) -> bool:
-        """Whether the body stands: its nose stands higher above its ankles than
-        ``standing_height_m``, measured at the ankles' range (a pixel across the view
-        there spans range / focal length metres, on the floor as upright)."""
-        ankles = points[list(_ANKLES)].mean(axis=0)
-        both = geometry.floor_ne_m(np.vstack([ankles, ankles + np.array([1.0, 0.0])]))
-        if not np.all(np.isfinite(both)):
-            return False  # the feet are not on the usable floor in view
-        metres_per_px = float(np.hypot(*(both[1] - both[0])))
-        upright_m = float(ankles[1] - points[0, 1]) * metres_per_px
-        return upright_m > self.params.standing_height_m
-
-    def _from_contact(
-        self, b: _Body, geometry: FrameGeometry, joints_ne: np.ndarray | None, h: int
-    ) -> np.ndarray:
-        """The footprint's centre from where the body meets the floor.
-
-        From a low camera a joint's height above the floor is uncertain, and every
-        centimetre of it moves a ray's floor point by range / camera height
-        centimetres. The lowest mask pixel of each column is where the body's near
-        side meets the floor (``contact_height_m`` up): exact whatever the body's
-        height. The centre lies beyond that near edge, along the view, by half the
-        body's extent in that direction (from its joints' footprint when known, else
-        half a lying body's width). NaN when the mask's bottom is cut by the frame.
-        """
-        p = self.params
-        ys, xs = np.nonzero(b.mask)
-        if len(xs) == 0:
-            return np.array([np.nan, np.nan])
-        bottom = np.full(int(xs.max()) + 1, -1)
-        np.maximum.at(bottom, xs, ys)
-        cols = np.nonzero(bottom >= 0)[0]
-        rows = bottom[cols]
-        keep = rows < h - 2  # a column running off the frame has no contact in view
-        if keep.sum() < max(3, 0.5 * len(cols)):
-            return np.array([np.nan, np.nan])
-        pix = np.column_stack([cols[keep] + 0.5, rows[keep] + 0.5]).astype(np.float64)
-        near = geometry.plane_ne_m(pix, p.contact_height_m)
-        nearer = geometry.plane_ne_m(pix + np.array([0.0, 40.0]), p.contact_height_m)
-        ok = np.all(np.isfinite(near), axis=1) & np.all(np.isfinite(nearer), axis=1)
-        if ok.sum() < 3:
-            return np.array([np.nan, np.nan])
-        edge = np.median(near[ok], axis=0)
-        view = np.median(near[ok] - nearer[ok], axis=0)
-        norm = float(np.hypot(*view))
-        if norm < 1e-6:
-            return np.array([np.nan, np.nan])
-        view /= norm
-        if joints_ne is not None and len(joints_ne) >= 2:
-            # Across the view the joints' footprint is true to scale (unlike along it);
-            # a body of joint span S that spans A across the view spans sqrt(S^2 - A^2)
-            # along it.
-            across = (joints_ne - joints_ne.mean(axis=0)) @ np.array([-view[1], view[0]])
-            span = float(across.max() - across.min())
-            along = math.sqrt(max(p.joint_span_m**2 - span**2, 0.0))
-            half = 0.5 * along + 0.5 * p.body_width_m
-        else:
-            half = 0.5 * p.body_width_m
-        return np.asarray(edge + view * min(half, p.max_half_extent_m), dtype=np.float64)
-
     def _own_extent_area(self, b: _Body) -> float:
         """A whole body's pixels from the body's own extent (images without geometry)."""
         p = self.params
         if b.points is not None:
             pts = b.points
             head = pts[0]
-            mid_sh = pts[list(_SHOULDERS)].mean(axis=0)
-            mid_hip = pts[list(_HIPS)].mean(axis=0)
-            knees = pts[list(_KNEES)].mean(axis=0)
-            ankles = pts[list(_ANKLES)].mean(axis=0)
+            mid_sh = pts[list(SHOULDERS)].mean(axis=0)
+            mid_hip = pts[list(HIPS)].mean(axis=0)
+            knees = pts[list(KNEES)].mean(axis=0)
+            ankles = pts[list(ANKLES)].mean(axis=0)
             chain = [head, mid_sh, mid_hip, knees, ankles]
             length = sum(float(np.hypot(*(a - c))) for a, c in itertools.pairwise(chain))
             length *= 1.12  # crown above the nose, soles below the ankles
@@ -572,7 +450,7 @@ class PeopleDetector:
         x1, y1 = min(float(w), b.box[2]), min(float(h), b.box[3])
         if x1 - x0 < 1.0 or y1 - y0 < 1.0:
             return None
-        u, v, heading = self._floor_pixel(b, geometry, w, h)
+        u, v, heading = floor_pixel(b, geometry, self.params.floor, w, h)
         # No pixel of mask: a person fills about half of its box (as dnn/hog assume).
         visible = float(b.mask.sum()) if b.mask.any() else 0.5 * (x1 - x0) * (y1 - y0)
         return Detection(

@@ -1,0 +1,174 @@
+"""Where a body the person models found lies on the floor: its floor point.
+
+Not the image centroid of its mask, which sits above the floor and projects short.
+From a camera 0.3 m up every centimetre of height error moves a floor point by
+range / 0.3 centimetres, so the point comes from where the body meets the floor:
+
+- a lying body with landmarks: the lowest mask pixel of each column is where its
+  near side meets the floor (``contact_height_m`` up); the footprint's centre lies
+  beyond that near edge, along the view, by half the body's extent in that
+  direction (``_from_contact``). Where the frame cuts that edge, the mean of its
+  joints taken to a plane ``joint_height_m`` above the floor;
+- a standing body (its nose more than ``standing_height_m`` above its ankles at the
+  ankles' range): its ankles;
+- a lone hand or face: where its box meets the floor;
+- a body without landmarks: the same near edge with half a body's width, else the
+  person detector's hip centre at joint height.
+
+``floor_pixel`` returns the pixel of that point, for the geolocation, and the
+body's heading where its landmarks show it lying.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from companion.vision.base import FrameGeometry
+
+N_BODY_POINTS = 33
+# BlazePose indices: nose 0, shoulders 11/12, hips 23/24, knees 25/26, ankles 27/28.
+SHOULDERS, HIPS, KNEES, ANKLES = (11, 12), (23, 24), (25, 26), (27, 28)
+
+
+@dataclass(frozen=True)
+class FloorParams:
+    joint_height_m: float = 0.10  # a lying adult's joints above the floor
+    contact_height_m: float = 0.03  # where a lying body's near side leaves the floor
+    body_width_m: float = 0.35  # a lying adult across the view (shoulders, hips)
+    max_half_extent_m: float = 0.9  # half a lying adult's length
+    joint_span_m: float = 1.45  # nose to ankles of a lying adult
+    landmark_seen: float = 0.5  # a landmark counts as in sight from this visibility
+    standing_height_m: float = 1.0  # nose this far above the ankles: standing
+
+
+class BodyLike(Protocol):
+    """What the floor point needs of a body (people._Body)."""
+
+    mask: np.ndarray  # bool, visible body pixels
+    points: np.ndarray | None  # (33, 2) landmarks in frame pixels, when trusted
+    seen: np.ndarray | None  # (33,) each landmark's visibility, 0..1
+    hip_px: np.ndarray  # (2,) hip centre
+    box: tuple[float, float, float, float]  # x0, y0, x1, y1
+    part: str  # "face" / "hand" for a lone part
+
+
+def floor_pixel(
+    b: BodyLike, geometry: FrameGeometry | None, p: FloorParams, w: int, h: int
+) -> tuple[float, float, float | None]:
+    """The pixel of the body's floor point (see the module docstring), and the
+    body's heading (NED yaw, feet to head) where its landmarks show it lying."""
+    heading = None
+    x0, _y0, x1, y1 = b.box
+    if geometry is None:
+        if b.points is not None:
+            u = float(np.clip(b.points[:, 0].mean(), 0, w - 1))
+            return u, float(np.clip(y1 - 1, 0, h - 1)), None
+        return (x0 + x1) / 2, min(y1, h) - 0.5, None
+    centre = np.array([np.nan, np.nan])
+    if b.points is not None:
+        joints = geometry.plane_ne_m(b.points, p.joint_height_m)
+        lying = not _standing(b.points, geometry, p)
+        finite = joints[np.all(np.isfinite(joints), axis=1)]
+        if lying and len(finite) >= N_BODY_POINTS // 2:
+            heading = _heading(b, joints, p)
+            centre = _from_contact(b, geometry, finite, h, p)
+            if not np.all(np.isfinite(centre)):
+                centre = finite.mean(axis=0)
+        else:
+            feet = geometry.floor_ne_m(b.points[list(ANKLES)])
+            feet = feet[np.all(np.isfinite(feet), axis=1)]
+            if len(feet):
+                centre = feet.mean(axis=0)
+    elif b.part:
+        centre = geometry.floor_ne_m(np.array([[(x0 + x1) / 2, min(y1, h) - 0.5]]))[0]
+    else:
+        centre = _from_contact(b, geometry, None, h, p)
+        if not np.all(np.isfinite(centre)):
+            centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
+    if np.all(np.isfinite(centre)):
+        px = geometry.pixels_of_floor(centre.reshape(1, 2))
+        if px is not None and np.all(np.isfinite(px[0])):
+            return float(px[0, 0]), float(px[0, 1]), heading
+    return (x0 + x1) / 2, min(y1, h) - 0.5, heading
+
+
+def _heading(b: BodyLike, joints_ne: np.ndarray, p: FloorParams) -> float | None:
+    """The body's axis (NED yaw, feet to head) from the first pair of body points
+    that are both in sight: nose-ankles, shoulders-hips, hips-ankles. The model
+    places hidden (buried) points by guesswork, so those are never used."""
+    if b.seen is None:
+        return None
+    seen = b.seen >= p.landmark_seen
+    for head_end, foot_end in (((0,), ANKLES), (SHOULDERS, HIPS), (HIPS, ANKLES)):
+        idx = [*head_end, *foot_end]
+        if not (np.all(seen[idx]) and np.all(np.isfinite(joints_ne[idx]))):
+            continue
+        d_ne = joints_ne[list(head_end)].mean(axis=0) - joints_ne[list(foot_end)].mean(axis=0)
+        if float(np.hypot(*d_ne)) > 1e-3:
+            return math.atan2(float(d_ne[1]), float(d_ne[0]))
+    return None
+
+
+def _standing(points: np.ndarray, geometry: FrameGeometry, p: FloorParams) -> bool:
+    """Whether the body stands: its nose stands higher above its ankles than
+    ``standing_height_m``, measured at the ankles' range (a pixel across the view
+    there spans range / focal length metres, on the floor as upright)."""
+    ankles = points[list(ANKLES)].mean(axis=0)
+    both = geometry.floor_ne_m(np.vstack([ankles, ankles + np.array([1.0, 0.0])]))
+    if not np.all(np.isfinite(both)):
+        return False  # the feet are not on the usable floor in view
+    metres_per_px = float(np.hypot(*(both[1] - both[0])))
+    upright_m = float(ankles[1] - points[0, 1]) * metres_per_px
+    return upright_m > p.standing_height_m
+
+
+def _from_contact(
+    b: BodyLike, geometry: FrameGeometry, joints_ne: np.ndarray | None, h: int, p: FloorParams
+) -> np.ndarray:
+    """The footprint's centre from where the body meets the floor.
+
+    From a low camera a joint's height above the floor is uncertain, and every
+    centimetre of it moves a ray's floor point by range / camera height
+    centimetres. The lowest mask pixel of each column is where the body's near
+    side meets the floor (``contact_height_m`` up): exact whatever the body's
+    height. The centre lies beyond that near edge, along the view, by half the
+    body's extent in that direction (from its joints' footprint when known, else
+    half a lying body's width). NaN when the mask's bottom is cut by the frame.
+    """
+    ys, xs = np.nonzero(b.mask)
+    if len(xs) == 0:
+        return np.array([np.nan, np.nan])
+    bottom = np.full(int(xs.max()) + 1, -1)
+    np.maximum.at(bottom, xs, ys)
+    cols = np.nonzero(bottom >= 0)[0]
+    rows = bottom[cols]
+    keep = rows < h - 2  # a column running off the frame has no contact in view
+    if keep.sum() < max(3, 0.5 * len(cols)):
+        return np.array([np.nan, np.nan])
+    pix = np.column_stack([cols[keep] + 0.5, rows[keep] + 0.5]).astype(np.float64)
+    near = geometry.plane_ne_m(pix, p.contact_height_m)
+    nearer = geometry.plane_ne_m(pix + np.array([0.0, 40.0]), p.contact_height_m)
+    ok = np.all(np.isfinite(near), axis=1) & np.all(np.isfinite(nearer), axis=1)
+    if ok.sum() < 3:
+        return np.array([np.nan, np.nan])
+    edge = np.median(near[ok], axis=0)
+    view = np.median(near[ok] - nearer[ok], axis=0)
+    norm = float(np.hypot(*view))
+    if norm < 1e-6:
+        return np.array([np.nan, np.nan])
+    view /= norm
+    if joints_ne is not None and len(joints_ne) >= 2:
+        # Across the view the joints' footprint is true to scale (unlike along it);
+        # a body of joint span S that spans A across the view spans sqrt(S^2 - A^2)
+        # along it.
+        across = (joints_ne - joints_ne.mean(axis=0)) @ np.array([-view[1], view[0]])
+        span = float(across.max() - across.min())
+        along = math.sqrt(max(p.joint_span_m**2 - span**2, 0.0))
+        half = 0.5 * along + 0.5 * p.body_width_m
+    else:
+        half = 0.5 * p.body_width_m
+    return np.asarray(edge + view * min(half, p.max_half_extent_m), dtype=np.float64)
