@@ -21,6 +21,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "BENCHMARKS.md"
 SECTION = re.compile(r"^## (\w+)\n", re.M)
+# What the file's header said of the machine before the stamps named one.
+_BEFORE_STAMPS = (
+    "predate 2026-11-26; the file's header then named an AMD EPYC, 2 cores, 25 GB, "
+    "Linux x86_64, Python 3.11.7"
+)
 
 
 def _machine() -> str:
@@ -49,7 +54,7 @@ def _section(name: str, module: object, figures: dict[str, object], seconds: flo
     doc = (getattr(module, "__doc__", None) or name).strip().splitlines()
     title, body = doc[0], "\n".join(doc[1:]).strip()
     rows = "\n".join(f"| {k} | {_format(v)} |" for k, v in figures.items())
-    stamp = f"{dt.date.today().isoformat()}, {seconds:.0f} s"
+    stamp = f"{dt.date.today().isoformat()}, {seconds:.0f} s, {_machine()}"
     return (
         f"## {name}\n\n**{title}** ({stamp})\n\n{body}\n\n| figure | value |\n|---|---|\n{rows}\n"
     )
@@ -60,7 +65,10 @@ def _existing_sections() -> dict[str, str]:
         return {}
     text = OUT.read_text()
     parts = SECTION.split(text)
-    return {parts[i]: f"## {parts[i]}\n{parts[i + 1]}" for i in range(1, len(parts) - 1, 2)}
+    # rstrip: the blank line between sections is the join's, not part of a section.
+    return {
+        parts[i]: f"## {parts[i]}\n{parts[i + 1].rstrip()}\n" for i in range(1, len(parts) - 1, 2)
+    }
 
 
 def main(argv: list[str]) -> int:
@@ -87,7 +95,8 @@ def main(argv: list[str]) -> int:
             print(f"  {k}: {_format(v)}")
     header = (
         "# Benchmarks\n\nWritten by `make bench` (`python -m bench`), each module pinned to one "
-        f"core.\n\nMachine: {_machine()}.\n\n"
+        "core. Each section's stamp names its date, run time and machine; sections whose "
+        f"stamp names no machine {_BEFORE_STAMPS}.\n\n"
     )
     OUT.write_text(header + "\n".join(sections[n] for n in names if n in sections))
     print(f"bench: wrote {OUT}")
