@@ -14,17 +14,13 @@ MAV_STATE. Before the sysid is known only that HEARTBEAT goes out, as the config
 system ID or 1: a UDP or TCP peer that answers only who spoke first (an autopilot's
 udpin, mavlink-router's UDP server) must hear us to start sending.
 
-Streams: ATTITUDE, LOCAL_POSITION_NED, GLOBAL_POSITION_INT, GPS_GLOBAL_ORIGIN and
-HOME_POSITION are requested with MAV_CMD_SET_MESSAGE_INTERVAL on the first
-heartbeat, and again whenever the autopilot may have forgotten them (ArduPilot
-does at every reboot): after a link loss, on the first heartbeat after a silence of
+Streams (mavlink_io/streams.py asks for them): requested on the first heartbeat,
+and again whenever the autopilot may have forgotten them (ArduPilot does at every
+reboot): after a link loss, on the first heartbeat after a silence of
 ``_HEARTBEAT_GAP_S`` (a reboot shorter than the link-loss timeout), after a
 confirmed new boot time, when the transport reopened (a TCP reconnect), and when
 the heartbeat is heard but no ATTITUDE or LOCAL_POSITION_NED came for
-``_stale_s`` (at most once per ``_stale_s``). Requests are idempotent, so a
-needless one costs five small commands.
-If no COMMAND_ACK accepts it within ``ack_timeout_s`` (twice), or it is refused, the
-old REQUEST_DATA_STREAM is used instead.
+``_stale_s`` (at most once per ``_stale_s``).
 
 Messages for us: RESCUE_ACK, RESCUE_PICTURE_ACK and RESCUE_OPERATOR_ACTION addressed to our
 (sysid, component) or broadcast, directly or inside our TUNNEL, and a ground
@@ -50,6 +46,15 @@ from mavlink_io.codec import Codec, MavMessage
 from mavlink_io.dialect import RESCUE_ACK_ID, RESCUE_OPERATOR_ACTION_ID, RESCUE_PICTURE_ACK_ID
 from mavlink_io.errors import LinkError, LinkTimeout
 from mavlink_io.link import Link
+from mavlink_io.streams import (
+    MAV_CMD_SET_MESSAGE_INTERVAL,
+    MSG_ATTITUDE,
+    MSG_GLOBAL_POSITION_INT,
+    MSG_GPS_GLOBAL_ORIGIN,
+    MSG_HOME_POSITION,
+    MSG_LOCAL_POSITION_NED,
+    StreamRequester,
+)
 from mavlink_io.telemetry import AUTOPILOT_COMPONENT, TelemetryDecoder, is_autopilot_heartbeat
 from mavlink_io.tlog import TlogWriter
 
@@ -58,14 +63,6 @@ log = logging.getLogger(__name__)
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
-MAV_CMD_SET_MESSAGE_INTERVAL = 511
-MAV_CMD_REQUEST_MESSAGE = 512
-MAV_RESULT_ACCEPTED = 0
-MSG_ATTITUDE = 30
-MSG_LOCAL_POSITION_NED = 32
-MSG_GLOBAL_POSITION_INT = 33
-MSG_GPS_GLOBAL_ORIGIN = 49
-MSG_HOME_POSITION = 242
 _TELEMETRY_IDS = frozenset(
     {
         MSG_ATTITUDE,
@@ -75,10 +72,6 @@ _TELEMETRY_IDS = frozenset(
         MSG_HOME_POSITION,
     }
 )
-# REQUEST_DATA_STREAM groups (MAV_DATA_STREAM): EXTRA1 carries ATTITUDE, POSITION
-# carries LOCAL_POSITION_NED and GLOBAL_POSITION_INT on ArduPilot.
-MAV_DATA_STREAM_POSITION = 6
-MAV_DATA_STREAM_EXTRA1 = 10
 
 MAX_STREAM_RATE_HZ = 200.0  # no autopilot streams faster; REQUEST_DATA_STREAM's rate is uint16
 _TICK_S = 0.05  # the reader loop's longest wait: bounds heartbeat and timeout jitter
@@ -195,11 +188,15 @@ class VehicleLink:
         self._stop = threading.Event()
         self._last_heartbeat_s = 0.0
         self._next_heartbeat_s = 0.0
-        self._stream_method = ""
-        self._request_sent_s: float | None = None
-        self._request_attempts = 0
         self._last_telemetry_s = 0.0
-        self._last_fresh_request_s = 0.0
+        self.streams = StreamRequester(
+            self.settings,
+            self.send,
+            self.codec.module,
+            lambda: self._sysid,
+            lambda: self.origins.origin is not None,
+            self.counters,
+        )
         self._reopens_seen = self._link_reopens()
         rates = [r for r in (s.attitude_rate_hz, s.local_position_rate_hz) if r > 0]
         self._stale_s = max(_MIN_STALE_S, 3.0 / min(rates)) if rates else math.inf
@@ -243,8 +240,7 @@ class VehicleLink:
                 self._changed.wait(remaining)
 
     def state(self) -> VehicleState:
-        with self._lock:
-            method = self._stream_method
+        method = self.streams.method
         return VehicleState(
             connected=self.connected,
             sysid=self._sysid,
@@ -376,18 +372,18 @@ class VehicleLink:
             self._next_heartbeat_s = now  # a peer that answers who spoke first must hear us
             if self._connected.is_set():
                 log.info("%s: link reopened: requesting streams again", self.link.name)
-                self._request_streams(now, fresh=True)
+                self.streams.request(now, fresh=True)
         if now >= self._next_heartbeat_s:
             self._next_heartbeat_s = now + self.settings.heartbeat_period_s
             self._send_heartbeat()
         if (
             self._connected.is_set()
             and now - self._last_telemetry_s > self._stale_s
-            and now - self._last_fresh_request_s > self._stale_s
+            and now - self.streams.last_fresh_s > self._stale_s
         ):
             level = (
                 logging.INFO
-                if self._last_telemetry_s >= self._last_fresh_request_s
+                if self._last_telemetry_s >= self.streams.last_fresh_s
                 else logging.DEBUG
             )
             log.log(
@@ -396,10 +392,8 @@ class VehicleLink:
                 self.link.name,
                 now - self._last_telemetry_s,
             )
-            self._request_streams(now, fresh=True)
-        sent = self._request_sent_s
-        if sent is not None and now - sent > self.settings.ack_timeout_s:
-            self._on_request_timeout(now)
+            self.streams.request(now, fresh=True)
+        self.streams.check_timeout(now)
 
     # ----------------------------------------------------------------- handlers
 
@@ -426,12 +420,12 @@ class VehicleLink:
                 self.counters.reboots += 1
                 log.warning("%s: autopilot rebooted (boot time went backwards)", self.link.name)
                 self.poses.clear()
-                self._request_streams(now, fresh=True)
+                self.streams.request(now, fresh=True)
             self._add_pose(update.pose)
             if update.origin_changed:
                 log.info("EKF origin: %s", self.origins.origin)
         elif msg.get_type() == "COMMAND_ACK" and msg.command == MAV_CMD_SET_MESSAGE_INTERVAL:
-            self._on_interval_ack(msg)
+            self.streams.on_interval_ack(msg)
 
     def _on_heartbeat(self, msg: MavMessage, now: float) -> None:
         if not is_autopilot_heartbeat(msg, self.settings.system_id):
@@ -452,11 +446,11 @@ class VehicleLink:
                 self.link.name,
                 gap_s,
             )
-            self._request_streams(now, fresh=True)
+            self.streams.request(now, fresh=True)
         if not self._connected.is_set():
             log.info("%s: autopilot heartbeat heard", self.link.name)
             self._connected.set()
-            self._request_streams(now, fresh=True)
+            self.streams.request(now, fresh=True)
 
     def _link_reopens(self) -> int:
         """How often the transport reopened (a ReconnectingLink counts it), else 0."""
@@ -502,91 +496,3 @@ class VehicleLink:
             self.link.write(self.codec.encode(heartbeat))
         except LinkError as exc:
             log.debug("%s: heartbeat failed: %s", self.link.name, exc)
-
-    def _stream_rates(self) -> list[tuple[int, float]]:
-        s = self.settings
-        return [
-            (MSG_ATTITUDE, s.attitude_rate_hz),
-            (MSG_LOCAL_POSITION_NED, s.local_position_rate_hz),
-            (MSG_GLOBAL_POSITION_INT, s.global_position_rate_hz),
-            (MSG_GPS_GLOBAL_ORIGIN, s.origin_rate_hz),
-            (MSG_HOME_POSITION, s.origin_rate_hz),
-        ]
-
-    def _request_streams(self, now: float, fresh: bool) -> None:
-        if fresh:
-            self._request_attempts = 0
-            self._last_fresh_request_s = now
-            if self.origins.origin is None:
-                self._request_origin_once()
-            with self._lock:
-                if self._stream_method == "data_stream":
-                    self._send_data_stream_requests()
-                    return
-                self._stream_method = ""
-        confirmation = min(self._request_attempts, 255)  # 0 first, then 1, 2 on retries
-        self.counters.stream_requests += 1  # before sending: a peer may answer at once
-        for msg_id, rate_hz in self._stream_rates():
-            interval_us = round(1e6 / rate_hz) if rate_hz > 0 else -1  # -1: stop it
-            self._command(
-                MAV_CMD_SET_MESSAGE_INTERVAL, confirmation, float(msg_id), float(interval_us)
-            )
-        self._request_attempts += 1
-        self._request_sent_s = now
-
-    def _request_origin_once(self) -> None:
-        """Ask for the EKF origin now: its slow stream (origin_rate_hz) may take seconds.
-
-        Victims confirmed before the origin is known go out without lat/lon and get
-        no map marker until it arrives, so the first seconds after connecting matter.
-        """
-        for msg_id in (MSG_GPS_GLOBAL_ORIGIN, MSG_HOME_POSITION):
-            self._command(MAV_CMD_REQUEST_MESSAGE, 0, float(msg_id))
-
-    def _command(self, command: int, confirmation: int, *params: float) -> None:
-        """COMMAND_LONG to the autopilot; unused params are 0."""
-        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
-        self.send(
-            self.codec.module.MAVLink_command_long_message(
-                self._sysid, AUTOPILOT_COMPONENT, command, confirmation, *p
-            )
-        )
-
-    def _on_interval_ack(self, msg: MavMessage) -> None:
-        if self._request_sent_s is None and self._stream_method:
-            return
-        if msg.result == MAV_RESULT_ACCEPTED:
-            with self._lock:
-                self._stream_method = "interval"
-            self._request_sent_s = None
-            return
-        log.info("SET_MESSAGE_INTERVAL refused (result %d): REQUEST_DATA_STREAM", msg.result)
-        self._fall_back()
-
-    def _on_request_timeout(self, now: float) -> None:
-        if self._request_attempts < 2:
-            self._request_streams(now, fresh=False)
-            return
-        log.info("no COMMAND_ACK to SET_MESSAGE_INTERVAL: falling back to REQUEST_DATA_STREAM")
-        self._fall_back()
-
-    def _fall_back(self) -> None:
-        self._request_sent_s = None
-        with self._lock:
-            self._stream_method = "data_stream"
-            self._send_data_stream_requests()
-
-    def _send_data_stream_requests(self) -> None:
-        m = self.codec.module
-        s = self.settings
-        position_hz = max(s.local_position_rate_hz, s.global_position_rate_hz)
-        self.counters.stream_requests += 1
-        for stream_id, rate_hz in (
-            (MAV_DATA_STREAM_EXTRA1, s.attitude_rate_hz),
-            (MAV_DATA_STREAM_POSITION, position_hz),
-        ):
-            self.send(
-                m.MAVLink_request_data_stream_message(
-                    self._sysid, AUTOPILOT_COMPONENT, stream_id, max(1, round(rate_hz)), 1
-                )
-            )
