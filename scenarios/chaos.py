@@ -15,7 +15,7 @@ SIGKILL at random moments, stops the HQ once with SIGTERM and once with SIGKILL
 disk (its own small tmpfs: needs root and mount; skipped and said so otherwise)
 for a while. At the end the camera stops (no new news), the harness waits until
 the companion's outbox holds no report and every victim it reported is at the HQ
-(bounded), stops both, and checks (``_check``):
+(bounded), stops both, and checks (``scenarios.chaoscheck.check``):
 
 - every true victim the companion confirmed is at the HQ with exactly one HQ ID,
   and no victim the companion's store reported is missing at the HQ;
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import json
 import logging
 import math
 import os
@@ -41,30 +40,24 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from fusion.types import TrackState
-from hq.registry import Registry
-from hq.view import hq_victims
-from mavlink_io.dialect import RESCUE_VICTIM_REPORT_ID
+from scenarios.chaoscheck import ChaosResult, check, companion_reported, hq_sources
 from scenarios.live import LiveSim
-from scenarios.radio import Radio, RadioLog
+from scenarios.radio import Radio
 from scenarios.supervise import Supervised
 from scenarios.world import PointNE, World, preset
 
 log = logging.getLogger(__name__)
 
 LOSS = 0.30  # share of datagrams lost on the radio, each way
-GATE_M = 1.0  # a reported victim within this of a true one is that person (bench.accuracy)
 CAMERA_FPS = 5.0  # ~100 ms of vision a frame on a loaded 2-core machine
 SPEED_M_S = 0.25  # slow enough for a handful of processed frames per pass
 RESTART_DELAY_S = 2.0  # systemd/rescue-companion.service: RestartSec=2
 DISK_BYTES = 96 * 1024 * 1024  # above the companion's 64 MB "disk full" warning level
 DRAIN_MAX_S = 240.0  # resends back off to 30 s; at 30 % loss each way, a few rounds
 POLL_S = 1.0
-ACK_ACCEPTED, ACK_DUPLICATE = 0, 1
 _LEAD_M = 2.5  # a pass starts this far short of its victim and ends as far beyond
 
 
@@ -145,100 +138,6 @@ def plan_faults(mission_s: float, seed: int) -> list[Fault]:
     return sorted(plan, key=lambda f: f.at_s)
 
 
-@dataclass
-class ChaosResult:
-    seed: int
-    mission_s: float
-    started_unix_s: float = 0.0
-    total_s: float = 0.0
-    drain_s: float | None = None  # None: the drain did not finish in time
-    faults_done: dict[str, int] = field(default_factory=dict)
-    disk_note: str = ""
-    true_victims: int = 0
-    true_confirmed: int = 0
-    true_at_hq: int = 0
-    companion_victims: int = 0
-    false_victims: int = 0
-    merged_victims: int = 0
-    hq_duplicates: int = 0
-    companion_duplicates: int = 0
-    missing_at_hq: list[int] = field(default_factory=list)
-    radio: RadioLog | None = None
-    acked_not_stored: list[int] = field(default_factory=list)
-    longest_wait_s: float | None = None
-    confirmed_at_s: list[float] = field(default_factory=list)  # mission time of each
-    longest_report_wait_s: float | None = None
-    companion_unplanned: int = 0
-    companion_quick: int = 0
-    hq_unplanned: int = 0
-    hq_quick: int = 0
-    tracebacks: int = 0
-    failures: list[str] = field(default_factory=list)
-    details: list[str] = field(default_factory=list)  # per victim, for the log
-
-    def figures(self) -> dict[str, object]:
-        r = self.radio
-        reports = r.reports if r is not None else []
-        acks = r.acks if r is not None else []
-        good_acks = {a.seq for a in acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
-        return {
-            "seed": self.seed,
-            "mission length, s": round(self.mission_s),
-            "run length with drain and stops, s": round(self.total_s),
-            "victims: true / confirmed by the companion / at the HQ": (
-                f"{self.true_victims} / {self.true_confirmed} / {self.true_at_hq}"
-            ),
-            "companion victim IDs reported (false / merged into another)": (
-                f"{self.companion_victims} ({self.false_victims} / {self.merged_victims})"
-            ),
-            "duplicate HQ victims / duplicate companion IDs for one person": (
-                f"{self.hq_duplicates} / {self.companion_duplicates}"
-            ),
-            "companion victims missing at the HQ": len(self.missing_at_hq),
-            "radio datagrams lost down / up, %": (
-                f"{r.to_ground.loss_pct:.1f} / {r.to_rover.loss_pct:.1f}"
-                if r is not None
-                else "n/a"
-            ),
-            "reports sent (transmissions) / distinct / resent": (
-                f"{len(reports)} / {len({x.report_seq for x in reports})} / "
-                f"{len(reports) - len({x.report_seq for x in reports})}"
-            ),
-            "reports acknowledged by the HQ (distinct) / acks sent / rejected": (
-                f"{len(good_acks)} / {len(acks)} / "
-                f"{sum(a.result not in (ACK_ACCEPTED, ACK_DUPLICATE) for a in acks)}"
-            ),
-            "acknowledged reports missing from the registry": len(self.acked_not_stored),
-            "operator RESEND/actions sent by the HQ": r.actions if r is not None else 0,
-            "companion SIGKILLs": self.faults_done.get("companion-kill", 0),
-            "HQ SIGTERM / SIGKILL restarts": (
-                f"{self.faults_done.get('hq-term', 0)} / {self.faults_done.get('hq-kill', 0)}"
-            ),
-            "autopilot reboots": self.faults_done.get("reboot", 0),
-            "state disk filled": self.disk_note,
-            "unplanned exits companion / HQ (of which quick)": (
-                f"{self.companion_unplanned} ({self.companion_quick}) / "
-                f"{self.hq_unplanned} ({self.hq_quick})"
-            ),
-            "longest wait of a confirmed victim for the HQ, s": (
-                round(self.longest_wait_s, 1) if self.longest_wait_s is not None else "n/a"
-            ),
-            "victims confirmed at mission time, s": (
-                ", ".join(f"{t:.0f}" for t in self.confirmed_at_s) or "none"
-            ),
-            "longest wait of any report (news) for the HQ, s": (
-                round(self.longest_report_wait_s, 1)
-                if self.longest_report_wait_s is not None
-                else "n/a"
-            ),
-            "drain after the mission, s": round(self.drain_s, 1)
-            if self.drain_s is not None
-            else "timed out",
-            "tracebacks in the logs": self.tracebacks,
-            "checks": "all passed" if not self.failures else "FAILED: " + "; ".join(self.failures),
-        }
-
-
 # -- the state disk --------------------------------------------------------------------
 
 
@@ -277,44 +176,6 @@ def fill(directory: Path) -> Path:
     finally:
         os.close(fd)
     return filler
-
-
-# -- reading the two databases while and after they run ------------------------------
-
-
-def _read_only(path: Path) -> sqlite3.Connection:
-    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=5.0)
-    db.execute("PRAGMA query_only=1")
-    return db
-
-
-def companion_reported(state_db: Path) -> tuple[dict[int, list[Any]], int]:
-    """The companion store's reported victims and the reports still in its outbox."""
-    if not state_db.exists():
-        return {}, 0
-    db = _read_only(state_db)
-    try:
-        row = db.execute("SELECT value FROM kv WHERE key='reported'").fetchone()
-        pending = db.execute(
-            "SELECT COUNT(*) FROM outbox WHERE msgid=?", (RESCUE_VICTIM_REPORT_ID,)
-        ).fetchone()[0]
-    finally:
-        db.close()
-    reported = {int(k): v for k, v in json.loads(row[0]).items()} if row else {}
-    return reported, int(pending)
-
-
-def hq_sources(hq_db: Path, sysid: int) -> set[int]:
-    if not hq_db.exists():
-        return set()
-    db = _read_only(hq_db)
-    try:
-        rows = db.execute("SELECT victim_id FROM sources WHERE robot_sysid=?", (sysid,)).fetchall()
-    except sqlite3.OperationalError:  # not created yet
-        return set()
-    finally:
-        db.close()
-    return {int(r[0]) for r in rows}
 
 
 def _wait(condition: Callable[[], bool], timeout_s: float, stop: threading.Event) -> float | None:
@@ -437,7 +298,7 @@ def run_chaos(
         result.failures.append(
             f"not running at the end: companion {rc_companion is None}, HQ {rc_hq is None}"
         )
-    _check(result, world, reported, pending, hq_db, companion, hq, out)
+    check(result, world, reported, pending, hq_db, companion, hq, out, DRAIN_MAX_S)
     for line in result.details:
         say(f"chaos: {line}")
     return result
@@ -479,130 +340,3 @@ def _inject(
 def _disk_seconds(free: Fault, result: ChaosResult) -> float:
     fill_at = [f.at_s for f in plan_faults(result.mission_s, result.seed) if f.kind == "disk-fill"]
     return free.at_s - fill_at[0] if fill_at else 0.0
-
-
-def _near(points: list[tuple[float, float]], north_m: float, east_m: float) -> int:
-    return sum(math.hypot(n - north_m, e - east_m) <= GATE_M for n, e in points)
-
-
-def _listing(items: list[tuple[int, tuple[float, float]]], north_m: float, east_m: float) -> str:
-    near = [
-        f"{i} ({n:.2f}, {e:.2f})"
-        for i, (n, e) in items
-        if math.hypot(n - north_m, e - east_m) <= 2 * GATE_M
-    ]
-    return ", ".join(near) or "none"
-
-
-def _check(
-    result: ChaosResult,
-    world: World,
-    reported: dict[int, list[Any]],
-    pending: int,
-    hq_db: Path,
-    companion: Supervised,
-    hq: Supervised,
-    out: Path,
-) -> None:
-    fails = result.failures
-    live = {
-        vid: (float(v[2]), float(v[3]))
-        for vid, v in reported.items()
-        if v[0] not in (TrackState.MERGED.name, TrackState.FALSE_ALARM.name)
-    }
-    with Registry(hq_db) as registry:
-        victims = [v for v in hq_victims(registry) if v.state is not TrackState.FALSE_ALARM]
-        sources = {s.report.victim_id for s in registry.sources() if s.report.robot_sysid == 1}
-        first_at_hq = registry.first_received_unix_s()
-    stored = _stored_seqs(hq_db)
-    hq_points = [(v.north_m, v.east_m) for v in victims]
-    companion_points = list(live.values())
-    result.true_victims = len(world.victims)
-    result.companion_victims = len(reported)
-    result.merged_victims = sum(v[0] == TrackState.MERGED.name for v in reported.values())
-    result.false_victims = sum(
-        not any(math.hypot(t.north_m - n, t.east_m - e) <= GATE_M for t in world.victims)
-        for n, e in companion_points
-    )
-    for t in world.victims:
-        by_companion = _near(companion_points, t.north_m, t.east_m)
-        at_hq = _near(hq_points, t.north_m, t.east_m)
-        result.true_confirmed += by_companion > 0
-        result.true_at_hq += at_hq > 0
-        result.companion_duplicates += max(0, by_companion - 1)
-        result.hq_duplicates += max(0, at_hq - 1)
-        result.details.append(
-            f"true victim {t.victim_id} at ({t.north_m:.2f}, {t.east_m:.2f}): companion "
-            + _listing([(vid, p) for vid, p in live.items()], t.north_m, t.east_m)
-            + "; HQ "
-            + _listing([(v.hq_id, (v.north_m, v.east_m)) for v in victims], t.north_m, t.east_m)
-        )
-        if by_companion > 1:
-            fails.append(
-                f"true victim {t.victim_id}: the companion itself holds {by_companion} victim"
-                f" IDs for it (so the HQ has {at_hq} HQ victims; want exactly 1)"
-            )
-        elif by_companion and at_hq != 1:
-            fails.append(f"true victim {t.victim_id}: {at_hq} HQ victims (want exactly 1)")
-    result.missing_at_hq = sorted(set(reported) - sources)
-    if result.missing_at_hq:
-        fails.append(f"companion victims missing at the HQ: {result.missing_at_hq}")
-    if pending:
-        fails.append(f"{pending} reports still in the companion's outbox")
-    if result.drain_s is None:
-        fails.append(f"the outbox did not drain within {DRAIN_MAX_S:.0f} s")
-    radio = result.radio
-    assert radio is not None
-    acked = {a.seq for a in radio.acks if a.result in (ACK_ACCEPTED, ACK_DUPLICATE)}
-    result.acked_not_stored = sorted(acked - stored)
-    if result.acked_not_stored:
-        fails.append(f"acknowledged but not in the registry: seq {result.acked_not_stored[:10]}")
-    decided: dict[int, int] = {}  # victim -> earliest report time (its confirmation)
-    for r in radio.reports:
-        decided[r.victim_id] = min(decided.get(r.victim_id, r.time_usec), r.time_usec)
-    waits = [
-        first_at_hq[(1, vid)] - decided[vid] / 1e6
-        for vid in reported
-        if (1, vid) in first_at_hq and vid in decided
-    ]
-    result.longest_wait_s = max(waits) if waits else None
-    report_waits = _stored_waits(hq_db).values()
-    result.longest_report_wait_s = max(report_waits) if report_waits else None
-    result.confirmed_at_s = sorted(
-        decided[vid] / 1e6 - result.started_unix_s for vid in reported if vid in decided
-    )
-    result.companion_unplanned = len(companion.unplanned_exits())
-    result.companion_quick = companion.quick_unplanned_exits()
-    result.hq_unplanned = len(hq.unplanned_exits())
-    result.hq_quick = hq.quick_unplanned_exits()
-    for name, sup in (("companion", companion), ("HQ", hq)):
-        exits = [r.returncode for r in sup.unplanned_exits()]
-        if exits:
-            fails.append(f"{name} exited unasked {len(exits)} times (status {exits})")
-    result.tracebacks = sum(
-        (out / name).read_text(errors="replace").count("Traceback")
-        for name in ("companion.log", "hq.log")
-    )
-    if result.tracebacks:
-        fails.append(f"{result.tracebacks} tracebacks in the logs")
-    if result.true_confirmed == 0:
-        fails.append("the companion confirmed no true victim: nothing was tested")
-    if result.disk_note.startswith(("full", "not yet")):
-        fails.append(f"state disk: {result.disk_note}")
-
-
-def _stored_seqs(hq_db: Path) -> set[int]:
-    return set(_stored_waits(hq_db))
-
-
-def _stored_waits(hq_db: Path) -> dict[int, float]:
-    """Each report the HQ stored from robot 1: seconds from its making to its receipt."""
-    db = _read_only(hq_db)
-    try:
-        rows = db.execute(
-            "SELECT report_seq, received_unix_s - report_time_usec / 1e6 FROM reports"
-            " WHERE robot_sysid=1"
-        ).fetchall()
-    finally:
-        db.close()
-    return {int(seq): float(wait) for seq, wait in rows}
