@@ -13,7 +13,8 @@ from mavlink_io.link import READ_CHUNK_BYTES, LinkCounters, wait_readable
 
 log = logging.getLogger(__name__)
 
-_SERIAL_WRITE_TIMEOUT_S = 0.5  # a stalled UART (no reader, flow control) drops, never blocks
+# A stalled UART (no reader, flow control): a write waits this long at most, then drops.
+_SERIAL_WRITE_TIMEOUT_S = 0.5
 
 
 class SerialLink:
