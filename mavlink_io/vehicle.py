@@ -182,7 +182,6 @@ class VehicleLink:
         # Other components this companion speaks for (its camera): requests addressed
         # to them also go to on_dialect; their replies go out through send_encoded.
         self.other_components: frozenset[int] = frozenset()
-        self._lock = threading.Lock()
         self._connected = threading.Event()
         self._changed = threading.Condition()  # notified after every reader-loop pass
         self._stop = threading.Event()
