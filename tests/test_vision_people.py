@@ -245,3 +245,32 @@ def test_a_lone_face_is_critical_against_a_whole_body(detector: PeopleDetector) 
     assert math.isclose(
         a.visibility_pct, 900 / ((30 / 0.13) ** 2 * 0.26 * 0.75) * 100, rel_tol=1e-6
     )
+
+
+def test_a_lying_body_whose_joints_miss_the_floor_is_placed_by_its_near_edge() -> None:
+    """A lying body seen above the horizon the pose gives (the rover pitched, or the
+    frame cuts it) has few joints that meet the floor in view. Its ankles alone must
+    not place it (they lie up to a body's length from its centre, and the model
+    guesses them when they are out of sight): its near edge, where the mask meets the
+    floor, and half a body's width beyond it do."""
+    from types import SimpleNamespace
+
+    from companion.vision.floorpoint import ANKLES, FloorParams, floor_pixel
+
+    geometry, *_ = _geometry()
+    mask = np.zeros((480, 640), bool)
+    mask[250:301, 250:391] = True  # the body's visible pixels; its near edge is row 300
+    points = np.tile(np.array([320.0, 100.0]), (33, 1))  # above the horizon: no floor
+    points[0] = (300.0, 120.0)  # nose
+    points[list(ANKLES)] = [(380.0, 200.0), (390.0, 200.0)]  # on the floor, far away
+    body = SimpleNamespace(
+        mask=mask, points=points, seen=np.ones(33), hip_px=np.array([320.0, 100.0]),
+        box=(250.0, 100.0, 391.0, 301.0), part="",
+    )  # fmt: skip
+    u, v, heading = floor_pixel(body, geometry, FloorParams(), 640, 480)
+    placed = geometry.floor_ne_m(np.array([[u, v]]))[0]
+    edge = geometry.plane_ne_m(np.array([[320.5, 300.5]]), FloorParams().contact_height_m)[0]
+    ankles = geometry.floor_ne_m(points[list(ANKLES)]).mean(axis=0)
+    assert heading is None  # nothing in view tells the body's axis
+    assert 0.1 < placed[0] - edge[0] < 0.3  # half a body's width beyond its near edge
+    assert np.hypot(*(placed - ankles)) > 1.0

@@ -8,7 +8,10 @@ range / 0.3 centimetres, so the point comes from where the body meets the floor:
   near side meets the floor (``contact_height_m`` up); the footprint's centre lies
   beyond that near edge, along the view, by half the body's extent in that
   direction (``_from_contact``). Where the frame cuts that edge, the mean of its
-  joints taken to a plane ``joint_height_m`` above the floor;
+  joints taken to a plane ``joint_height_m`` above the floor. Where fewer than half
+  its joints meet that plane in view (the frame cuts the body, or the pose's
+  attitude puts it above the horizon), the joints tell neither its extent nor its
+  axis: the near edge and half a body's width;
 - a standing body (its nose more than ``standing_height_m`` above its ankles at the
   ankles' range): its ankles;
 - a lone hand or face: where its box meets the floor;
@@ -71,12 +74,16 @@ def floor_pixel(
     centre = np.array([np.nan, np.nan])
     if b.points is not None:
         joints = geometry.plane_ne_m(b.points, p.joint_height_m)
-        lying = not _standing(b.points, geometry, p)
         finite = joints[np.all(np.isfinite(joints), axis=1)]
-        if lying and len(finite) >= N_BODY_POINTS // 2:
-            heading = _heading(b, joints, p)
-            centre = _from_contact(b, geometry, finite, h, p)
-            if not np.all(np.isfinite(centre)):
+        if not _standing(b.points, geometry, p):
+            # Lying. Where most joints miss the floor in view (a body cut by the frame,
+            # or seen above the horizon the pose gives), they tell neither its heading
+            # nor its extent: its near edge and half a body's width do.
+            enough = len(finite) >= N_BODY_POINTS // 2
+            if enough:
+                heading = _heading(b, joints, p)
+            centre = _from_contact(b, geometry, finite if enough else None, h, p)
+            if not np.all(np.isfinite(centre)) and enough:
                 centre = finite.mean(axis=0)
         else:
             feet = geometry.floor_ne_m(b.points[list(ANKLES)])
