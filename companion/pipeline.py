@@ -8,6 +8,7 @@ history, and what to do with the decisions.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import Counter
@@ -71,6 +72,11 @@ class Pipeline:
         self.policy = policy
         self.counters = PipelineCounters()
         self._geo = config.geolocation
+        # Where a tentative track not detected loses support (see TrackerParams).
+        self._miss_geo = dataclasses.replace(
+            self._geo,
+            max_range_m=min(self._geo.max_range_m, config.tracker.miss_max_range_m),
+        )
 
     def process(self, frame: Frame, poses: PoseHistory) -> FrameOutcome:
         """Run one frame; its pose comes from ``poses`` at the frame's capture time."""
@@ -93,7 +99,7 @@ class Pipeline:
         events = self.tracker.update(
             observations,
             frame.t_unix_s,
-            lambda n, e: in_view(self.camera, pose, n, e, self._geo),
+            lambda n, e: in_view(self.camera, pose, n, e, self._miss_geo),
         )
         decisions = self.policy.decide(events, self.tracker.victims(), frame.t_unix_s)
         self.counters.detections += len(detections)
