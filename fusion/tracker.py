@@ -30,9 +30,10 @@ Per ``update`` (one processed camera frame, with or without detections):
    twice per frame, or a 1-in-100 noise outlier, would spawn a ghost that steals
    detections, confirms and later merges); the remaining unmatched observations
    start tentative tracks;
-4. tentative tracks in view (``in_view(north, east)``; the pipeline's counts only
-   within ``miss_max_range_m``) but not detected gain ``miss_log_odds``; they are confirmed at ``confirm_log_odds`` and die below
-   ``delete_log_odds`` or when unseen for ``tentative_timeout_s``;
+4. tentative tracks in view (``in_view(north, east)``: the pipeline's counts only
+   points within ``miss_max_range_m``) but not detected gain ``miss_log_odds``;
+   they are confirmed at ``confirm_log_odds`` and die below ``delete_log_odds`` or
+   when unseen for ``tentative_timeout_s``;
 5. confirmed victims are never deleted; unseen for ``not_seen_recently_s`` they
    become NOT_SEEN_RECENTLY, and CONFIRMED again when seen;
 6. two confirmed victims whose difference is within ``merge_chi2`` merge: the older
