@@ -21,6 +21,16 @@ so a buried body reads as mostly visible (urgency right at 20 and 5 % is low her
 Live, the camera model gives the area a whole lying adult covers at the floor point,
 which this benchmark cannot exercise on photos without a pose. The 5 % figure is what is
 honest: no model measured here finds a body that small.
+
+``false_detections``: detections that match no person. The debris patches are small
+textured shapes on an indoor scene, and the person detector with its landmark model
+fires on some of them (on the whole brick and gravel photos it does not: real_images,
+negatives). Some of the people missed at 50 % are such a detection on a patch
+beside a body whose legs still show. Their person scores (0.5-0.78), landmark flags,
+landmark visibilities and limb proportions overlap those of the buried people found
+(measured 2026-11-26), so no rule on them removes these without losing buried people.
+Live, one frame's detection becomes a victim only when the tracker confirms it over
+several frames and viewpoints.
 """
 
 from __future__ import annotations
@@ -109,13 +119,14 @@ def run() -> dict[str, object]:
         return {"skipped": str(exc)}
     result: dict[str, Any] = {}
     for level in LEVELS_PCT:
-        people = found = judged = right = 0
+        people = found = judged = right = false = 0
         for n, (rel, truth) in enumerate(sorted(gt.items())):
             img = read_image(FALLS / rel)
             if level < 100:
                 img = bury(img, truth["people"], level, textures, seed=1000 * level + n)
             dets = detector.detect(img, None, 0.0)
-            found_by, _ = match(dets, truth["people"])
+            found_by, n_false = match(dets, truth["people"])
+            false += n_false
             for d in found_by:
                 a = None if d is None else assess(d, None)
                 if a is not None:
@@ -125,6 +136,7 @@ def run() -> dict[str, object]:
             found += sum(d is not None for d in found_by)
         result[f"recall_at_{level}pct"] = found / people
         result[f"urgency_right_at_{level}pct"] = right / judged if judged else math.nan
+        result[f"false_detections_at_{level}pct"] = false
     return result
 
 
