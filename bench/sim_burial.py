@@ -2,15 +2,16 @@
 
 Seeded victims drawn as 3-D bodies (scenarios.body3d: postures on the back, side,
 face down and curled; adults and children; skin very dark to very pale; plain,
-patterned, hi-vis and dusty clothes) lie on the simulated warehouse floor, each
-buried by a slab (scenarios.generate.bury) until about 100, 50, 20 or 5 % of its
-footprint stays uncovered. Each is seen from the rover's camera (0.3 m up, 12 deg
-down) at 1.5, 2.5 and 3.5 m from four bearings, three frames per view as live (the
-detector's extra passes take turns over frames), with the camera geometry built
-from the pose as the pipeline does. A view counts when the renderer shows at least
-300 pixels of the body; it is found when a detection's floor point lies within 1 m
-of the body's centre or of its visible part. Urgency is judged on the found views:
-100 % LIGHT, 50 % LIGHT or MEDIUM (the boundary), 20 % MEDIUM, 5 % CRITICAL.
+patterned, hi-vis and dusty clothes; every other one in short sleeves) lie on the
+simulated warehouse floor, each buried by a slab (scenarios.generate.bury) until
+about 100, 50, 20 or 5 % of its footprint stays uncovered. Each is seen from the
+rover's camera (0.3 m up, 12 deg down) at 1.5, 2.5 and 3.5 m from four bearings,
+three frames per view as live (the detector's extra passes take turns over frames),
+with the camera geometry built from the pose as the pipeline does. A view counts
+when the renderer shows at least 300 pixels of the body; it is found when a
+detection's floor point lies within 1 m of the body's centre or of its visible
+part. Urgency is judged on the found views: 100 % LIGHT, 50 % LIGHT or MEDIUM (the
+boundary), 20 % MEDIUM, 5 % CRITICAL.
 
 Compare with the real burial benchmark (section burial): if the simulator were
 much easier than real images it would hide the detector's limits.
@@ -30,7 +31,7 @@ from fusion.errors import GeolocationRejected
 from fusion.geolocate import geolocate
 from fusion.params import GeolocationParams
 from fusion.types import PoseSample, Urgency
-from scenarios.body3d import PATTERNS, POSTURES
+from scenarios.body3d import PATTERNS, POSTURES, SLEEVES, Sleeves
 from scenarios.camera import VEHICLE_HEIGHT_M, default_camera
 from scenarios.generate import CLOTHING, HAIR, SKIN, TROUSERS, bury
 from scenarios.render import Renderer
@@ -51,7 +52,7 @@ MIN_VIEW_PX = 300
 GATE_M = 1.0
 
 
-def _victim(rng: np.random.Generator) -> Victim:
+def _victim(rng: np.random.Generator, sleeves: Sleeves = "long") -> Victim:
     child = rng.random() < 0.2
     pick = lambda palette: palette[int(rng.integers(len(palette)))]  # noqa: E731
     return Victim(
@@ -69,6 +70,7 @@ def _victim(rng: np.random.Generator) -> Victim:
         dust=float(rng.uniform(0.0, 0.6)),
         left_arm_rad=math.radians(float(rng.uniform(0, 80))),
         right_arm_rad=math.radians(float(rng.uniform(0, 80))),
+        sleeves=sleeves,
     )
 
 
@@ -79,7 +81,7 @@ def measure_level(level_pct: int, seed: int = 0) -> dict[str, Any]:
     detector = make_detector(DetectorConfig())
     views = found = right = 0
     for k in range(VICTIMS_PER_LEVEL):
-        v = _victim(rng)
+        v = _victim(rng, SLEEVES[k % 2])
         debris = tuple(bury(rng, v, float(level_pct))) if level_pct < 100 else ()
         world = World(size_m=(10.0, 8.0), debris=debris, victims=(v,), seed=seed * 100 + k)
         v = world.victims[0]

@@ -3,10 +3,10 @@
 3-6 victims of every urgency class (each partly buried by a slab whose reach along
 the body is searched until the exact visibility lands in the class wanted): adults
 and children, on the back, the side, face down or curled, skin from very dark to
-very pale, clothing plain, patterned or hi-vis, grey, brown, black or dusty, with
-dust on skin and clothes; ordinary rubble (concrete, wood, metal, cartons, pallets,
-plasterboard, tarps, cables), racking uprights along the walls, look-alike debris in
-skin and clothing colours, and one or two dark zones.
+very pale, clothing plain, patterned or hi-vis, grey, brown, black or dusty, long
+or short sleeves, with dust on skin and clothes; ordinary rubble (concrete, wood,
+metal, cartons, pallets, plasterboard, tarps, cables), racking uprights along the
+walls, look-alike debris in skin and clothing colours, and one or two dark zones.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from fusion.types import Urgency
-from scenarios.body3d import PATTERNS, POSTURES
+from scenarios.body3d import PATTERNS, POSTURES, SLEEVES, Sleeves
 from scenarios.world import RGB, Debris, LightZone, Victim, World, compute_visibility
 
 SKIN: tuple[RGB, ...] = (
@@ -183,6 +183,12 @@ def bury(
     return [best]
 
 
+def _sleeves(seed: int, victim_id: int) -> Sleeves:
+    """Long or short sleeves, even odds, from a random stream of their own (the
+    world's other draws do not depend on it)."""
+    return SLEEVES[int(np.random.default_rng([seed, 0x51E, victim_id]).integers(2))]
+
+
 def generate(seed: int, size_m: tuple[float, float] = (12.0, 8.0)) -> World:
     """A random mixed world for the seed (see the module docstring)."""
     rng = np.random.default_rng([seed, 0x6E4])
@@ -215,6 +221,7 @@ def generate(seed: int, size_m: tuple[float, float] = (12.0, 8.0)) -> World:
             left_arm_rad=_r(math.radians(rng.uniform(0, 80))),
             right_arm_rad=_r(math.radians(rng.uniform(0, 80))),
             leg_spread_rad=_r(math.radians(rng.uniform(0, 10))),
+            sleeves=_sleeves(seed, i),
         )
         victims.append(v)
         debris += _bury(rng, v, urgency)

@@ -26,7 +26,7 @@ import numpy as np
 
 from fusion.types import GlobalOrigin, Urgency
 from scenarios import body3d
-from scenarios.body3d import PATTERNS, POSTURES, Pattern, Posture
+from scenarios.body3d import PATTERNS, POSTURES, SLEEVES, Pattern, Posture, Sleeves
 from scenarios.errors import SimError
 
 RGB = tuple[int, int, int]
@@ -185,6 +185,7 @@ class Victim:
     left_arm_rad: float = 0.15
     right_arm_rad: float = 0.15
     leg_spread_rad: float = 0.05
+    sleeves: Sleeves = "long"
     visibility_pct: float = math.nan  # ground truth, computed by World
     visible_north_m: float = math.nan  # centroid of the uncovered body
     visible_east_m: float = math.nan
@@ -201,6 +202,8 @@ class Victim:
             raise WorldError(f"{where}.posture = {self.posture!r}: one of {', '.join(POSTURES)}")
         if self.pattern not in PATTERNS:
             raise WorldError(f"{where}.pattern = {self.pattern!r}: one of {', '.join(PATTERNS)}")
+        if self.sleeves not in SLEEVES:
+            raise WorldError(f"{where}.sleeves = {self.sleeves!r}: one of {', '.join(SLEEVES)}")
         if not 0.0 <= self.dust <= 1.0:
             raise WorldError(f"{where}.dust = {self.dust}: must be in [0, 1]")
 
@@ -221,6 +224,7 @@ class Victim:
             self.left_arm_rad,
             self.right_arm_rad,
             self.leg_spread_rad,
+            self.sleeves,
         )
 
     def look(self) -> body3d.Look:

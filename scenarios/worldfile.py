@@ -13,8 +13,8 @@
     [[debris]] kind, colour, polygon_ne_m = [[n, e], ...]
     [[light_zones]] north_m, east_m, radius_m, light, edge_m
     [[victims]] victim_id, north_m, east_m, heading_deg, height_m, skin, top,
-                trousers, shoes, hair, posture, pattern, dust, left_arm_deg,
-                right_arm_deg, leg_spread_deg
+                trousers, shoes, hair, posture, pattern, sleeves ("long" or
+                "short"), dust, left_arm_deg, right_arm_deg, leg_spread_deg
 
 ``visibility_pct`` and ``urgency`` are written into [[victims]] for people to read
 and are recomputed (not trusted) on load. Unknown keys are errors.
@@ -68,6 +68,7 @@ _VICTIM_KEYS = {
     "hair",
     "posture",
     "pattern",
+    "sleeves",
     "dust",
     "left_arm_deg",
     "right_arm_deg",
@@ -168,7 +169,9 @@ def _list_of_tables(data: dict[str, Any], key: str) -> list[Any]:
 
 
 def _victim(t: _Table) -> Victim:
-    return Victim(
+    """The victim a [[victims]] table describes; a value no victim can have (a height,
+    posture, pattern or sleeves out of range) is named with the file and table."""
+    fields: dict[str, Any] = dict(
         victim_id=t.integer("victim_id"),
         north_m=t.num("north_m"),
         east_m=t.num("east_m"),
@@ -179,13 +182,18 @@ def _victim(t: _Table) -> Victim:
         trousers_rgb=t.colour("trousers"),
         shoes_rgb=t.colour("shoes", "#282422"),
         hair_rgb=t.colour("hair", "#261e18"),
-        posture=t.text("posture", "back"),  # type: ignore[arg-type]  # checked by Victim
-        pattern=t.text("pattern", "plain"),  # type: ignore[arg-type]
+        posture=t.text("posture", "back"),
+        pattern=t.text("pattern", "plain"),
+        sleeves=t.text("sleeves", "long"),
         dust=t.num("dust", 0.0),
         left_arm_rad=math.radians(t.num("left_arm_deg", 9.0)),
         right_arm_rad=math.radians(t.num("right_arm_deg", 9.0)),
         leg_spread_rad=math.radians(t.num("leg_spread_deg", 3.0)),
     )
+    try:
+        return Victim(**fields)
+    except WorldError as exc:
+        raise WorldError(f"{t.where}: {exc}") from None
 
 
 def world_from_dict(data: dict[str, Any], where: str = "world") -> World:
@@ -332,6 +340,7 @@ def world_to_toml(world: World) -> str:
             f'hair = "{hex_from_rgb(v.hair_rgb)}"',
             f'posture = "{v.posture}"',
             f'pattern = "{v.pattern}"',
+            f'sleeves = "{v.sleeves}"',
             f"dust = {_f(v.dust)}",
             f"left_arm_deg = {_deg(v.left_arm_rad)}",
             f"right_arm_deg = {_deg(v.right_arm_rad)}",

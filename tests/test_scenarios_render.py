@@ -153,3 +153,27 @@ def test_same_seed_same_frame_and_jpeg_option() -> None:
     small = dataclasses.replace(default_camera(), intrinsics=Intrinsics.from_fov(320, 240, 70.0))
     jpeg = Renderer(world, small, options=RenderOptions(jpeg_quality=40)).render(pose).image
     assert jpeg.shape == (240, 320, 3)
+
+
+def test_short_sleeves_show_the_forearms_skin() -> None:
+    """A T-shirt bares the forearms: seen from the rover, the short-sleeved body shows
+    skin where the long-sleeved one shows its top, and nothing else changes."""
+    green_skin, blue_top = (40, 200, 40), (40, 40, 200)
+    world = preset("light")
+    (v,) = world.victims
+    v = dataclasses.replace(v, skin_rgb=green_skin, top_rgb=blue_top, pattern="plain", dust=0.0)
+    facing = math.atan2(v.east_m - 3.2, v.north_m - 3.8)
+    frames = {}
+    for sleeves in ("long", "short"):
+        w = dataclasses.replace(world, victims=(dataclasses.replace(v, sleeves=sleeves),))
+        frames[sleeves] = (
+            Renderer(w, options=CLEAN)
+            .render(_pose(3.8, 3.2, math.degrees(facing)))
+            .image.astype(int)
+        )
+    changed = np.abs(frames["long"] - frames["short"]).sum(axis=2) > 30
+    assert changed.sum() > 100  # the forearms are in view
+    b, g, _r = (frames["short"][changed][:, i] for i in range(3))
+    assert np.mean(g > b) > 0.9  # green skin where the long sleeves were blue
+    b, g, _r = (frames["long"][changed][:, i] for i in range(3))
+    assert np.mean(b > g) > 0.9

@@ -137,12 +137,14 @@ def test_save_and_load_round_trip(tmp_path: Path) -> None:
     back = load_world(path)
     assert back.name == world.name and back.seed == world.seed
     assert len(back.victims) == len(world.victims) and back.debris == world.debris
+    assert {v.sleeves for v in world.victims} == {"long", "short"}  # both kinds saved
     for a, b in zip(world.victims, back.victims, strict=True):
-        assert (a.victim_id, a.north_m, a.east_m, a.top_rgb) == (
+        assert (a.victim_id, a.north_m, a.east_m, a.top_rgb, a.sleeves) == (
             b.victim_id,
             b.north_m,
             b.east_m,
             b.top_rgb,
+            b.sleeves,
         )
         assert a.heading_rad == pytest.approx(b.heading_rad, abs=1e-9)
         # Visibility is recomputed on load, from the same geometry.
@@ -166,6 +168,10 @@ def test_save_and_load_round_trip(tmp_path: Path) -> None:
             "debris[0].polygon_ne_m",
         ),
         ("[floor]\ncolor = '#808080'", "floor.color: unknown key"),
+        (
+            '[[victims]]\nvictim_id = 1\nnorth_m = 3.0\neast_m = 2.0\nheading_deg = 0.0\nheight_m = 1.7\nskin = "#aabbcc"\ntop = "#000000"\ntrousers = "#000000"\nsleeves = "none"',
+            "victims[1].sleeves = 'none': one of long, short",
+        ),
         ("size_m = [12.0, 8.0", "not valid TOML"),
     ],
 )
