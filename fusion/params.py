@@ -77,7 +77,11 @@ class TrackerParams:
     # 32 views at 2.5 m and 14 of 32 at 3.5 m; farther, not seeing a body is no
     # evidence against it (suite 2026-11-26: 12 -> 13 of 24 found, false victims same).
     miss_max_range_m: float = 3.5
-    confirm_log_odds: float = 2.5  # tentative -> confirmed at or above this
+    # Tentative -> confirmed at or above this: three detections with no miss between.
+    # Demanding also a spread of viewing directions (5 or 10 degrees, seen from the
+    # track) lost 2 of seed1's 4 victims, seen in bursts from one side, and at 5
+    # degrees kept its false one (suite, 2026-11-26): not done.
+    confirm_log_odds: float = 2.5
     delete_log_odds: float = -1.5  # tentative tracks die below this
     max_log_odds: float = 8.0  # clamp, so a long-seen track can still lose support
     tentative_timeout_s: float = 20.0  # a tentative track not seen this long dies
