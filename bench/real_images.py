@@ -16,8 +16,9 @@ whole companion stays under that with its other threads: bench/e2e.py). Each pho
 is scored as ``rescue-companion detect`` sees it, alone: every extra detector pass
 runs on it (the two turned frames; without a geometry, a zoomed tile of the
 frame's centre). ``ms_median`` is the live schedule, where one extra pass runs per
-frame, taking turns (a live camera sees a body on many frames), timed on the same
-frames; ``photo_ms_median`` is the single-photo time with every pass.
+frame, taking turns, and the face and palm detectors take turns too (a live camera
+sees a body on many frames), timed on the same frames; ``photo_ms_median`` is the
+single-photo time with every pass and both part detectors.
 ``people_enhanced`` enhances dark frames (mean luma under
 0.25) before the models. None of the 24 real frames is dark, so ``dark:`` repeats
 the real_falls scoring on the same frames made dark as in an unlit warehouse

@@ -190,6 +190,23 @@ def test_live_detector_spreads_extra_passes_over_frames() -> None:
     assert min(t[0] for t in tiles) == 0 and max(t[2] for t in tiles) == 640
 
 
+def test_live_detector_looks_for_faces_and_hands_on_alternate_frames(shared_data: Path) -> None:
+    """Live, the face and palm detectors take turns (a hand in view is still searched
+    every other frame); a photo gets both. This frame shows a face and a hand."""
+    root, _truth = _falls(shared_data)
+    image = cv2.imread(str(root / "frames" / "Subject_1-Fall-13_f012.jpg"))
+    live = make_detector(DetectorConfig(backend="people"))
+    single = make_detector(DetectorConfig(backend="people"), single_images=True)
+
+    def cues(det) -> set[str]:  # type: ignore[no-untyped-def]
+        return {c for d in det.detect(image, None, 0.0) for c in d.cues}
+
+    assert {"face", "hand"} <= cues(single)
+    first, second = cues(live), cues(live)
+    assert {"face", "hand"} <= first | second
+    assert not {"face", "hand"} <= first and not {"face", "hand"} <= second
+
+
 # -- geometry: where a body lies -----------------------------------------------------
 
 

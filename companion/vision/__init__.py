@@ -51,6 +51,7 @@ def make_detector(config: DetectorConfig, single_images: bool = False) -> Detect
             PeopleParams(
                 silhouette_fill=config.body_silhouette_fill,
                 extra_passes=99 if single_images else PeopleParams.extra_passes,
+                parts_take_turns=not single_images,
             ),
             enhancer,
             config.min_score,

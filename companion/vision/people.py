@@ -84,6 +84,11 @@ class PeopleParams:
     # many of those run per frame, taking turns (a live camera sees a body on many
     # frames); a large number runs all of them on every frame, as for a single photo.
     extra_passes: int = 1
+    # The face (~5 ms) and palm (~12 ms) detectors look for the small exposed parts of
+    # a buried person. Live they take turns, one per frame, as the extra passes do (a
+    # hand in view for a second is still searched five times at 10 frames/s); False
+    # runs both on every frame, as for a single photo.
+    parts_take_turns: bool = True
     far_tiles: bool = True  # tiles of the far floor band (needs the frame's geometry)
     # Without a geometry (a photo) the far band is unknown: a 2:1 tile of this share of
     # the frame's width at its centre zooms a small or distant body by 1/share.
@@ -194,6 +199,7 @@ class PeopleDetector:
         self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir))
         self._face = Model(models.model_path("face_detection_full_range.tflite", model_dir))
         self._frame = 0  # extra passes run, for their turns
+        self._parts_turn = 0  # frames searched for parts, for the face/palm turns
         self._anchors = {
             "pose": ssd.anchors(POSE_SPEC),
             "palm": ssd.anchors(PALM_SPEC),
@@ -357,8 +363,13 @@ class PeopleDetector:
                 if any(b.region[hy, hx] for b in bodies):
                     continue  # the same body, seen again by a turned pass
                 _add_body(bodies, self._body(rgb, seg, d.score, kp, box), p.same_body_overlap)
-        parts = [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
-        parts += [("hand", x) for x in self._ssd(self._palm, PALM_SPEC, "palm", rgb, 0.0)]
+        parts = []
+        turn = self._parts_turn
+        self._parts_turn += 1
+        if not p.parts_take_turns or turn % 2 == 0:
+            parts += [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
+        if not p.parts_take_turns or turn % 2 == 1:
+            parts += [("hand", x) for x in self._ssd(self._palm, PALM_SPEC, "palm", rgb, 0.0)]
         for kind, (d, box, _kp) in parts:
             cx = int(np.clip((box[0] + box[2]) / 2, 0, w - 1))
             cy = int(np.clip((box[1] + box[3]) / 2, 0, h - 1))
