@@ -29,8 +29,8 @@ negatives). Some of the people missed at 50 % are such a detection on a patch
 beside a body whose legs still show. Their person scores (0.5-0.78), landmark flags,
 landmark visibilities and limb proportions overlap those of the buried people found
 (measured 2026-11-26), so no rule on them removes these without losing buried people.
-Live, one frame's detection becomes a victim only when the tracker confirms it over
-several frames and viewpoints.
+Live, one frame's detection becomes a victim only when the tracker has seen it on
+several frames (three, with no miss between).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from scenarios.body3d import DIGITS, POSTURES, Solid, build_body
+from scenarios.body3d import DIGITS, POSTURES, Body3D, Posture, Solid, build_body
 
 
 def _height_above_floor_m(solid: Solid) -> float:
@@ -17,13 +17,13 @@ def _height_above_floor_m(solid: Solid) -> float:
     return -(float(solid.a[2]) + float(np.linalg.norm(solid.axes[2, :])))
 
 
-def _solid(body, name: str) -> Solid:  # type: ignore[no-untyped-def]
+def _solid(body: Body3D, name: str) -> Solid:
     return next(s for s in body.solids if s.name == name)
 
 
 @pytest.mark.parametrize("posture", POSTURES)
-def test_every_body_rests_on_the_floor(posture: str) -> None:
-    body = build_body(0.0, 0.0, 0.3, 1.75, posture, math.radians(50), math.radians(20))  # type: ignore[arg-type]
+def test_every_body_rests_on_the_floor(posture: Posture) -> None:
+    body = build_body(0.0, 0.0, 0.3, 1.75, posture, math.radians(50), math.radians(20))
     heights = [_height_above_floor_m(s) for s in body.solids if not s.name.endswith(DIGITS)]
     assert min(heights) == pytest.approx(0.0, abs=0.005)  # touching, not floating
 
