@@ -18,7 +18,9 @@ runs on it (the two turned frames; without a geometry, a zoomed tile of the
 frame's centre). ``ms_median`` is the live schedule, where one extra pass runs per
 frame, taking turns, and the face and palm detectors take turns too (a live camera
 sees a body on many frames), timed on the same frames; ``photo_ms_median`` is the
-single-photo time with every pass and both part detectors.
+single-photo time with every pass and both part detectors. On the virtual machine
+of 2026-11-26/27 the same code's medians varied by up to 20 ms from run to run (compare
+``people`` and ``people_enhanced``, which do the same work on these bright frames).
 ``people_enhanced`` enhances dark frames (mean luma under
 0.25) before the models. None of the 24 real frames is dark, so ``dark:`` repeats
 the real_falls scoring on the same frames made dark as in an unlit warehouse
