@@ -124,6 +124,10 @@ class CameraConfig:
     calibration_file: Path | None = None  # OpenCV FileStorage YAML/XML or ROS camera_info YAML
     mount: MountConfig = field(default_factory=MountConfig)
     reopen_max_backoff_s: float = 5.0
+    # A live camera that sends no frame for this long is closed and reopened (a camera
+    # that stays connected but silent is otherwise never noticed); 0: never. Not for
+    # file: and frames: recordings.
+    stall_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
         if not self.source.strip():
@@ -142,6 +146,8 @@ class CameraConfig:
                 f"distortion = {list(self.distortion)}: give 4 or 5 coefficients (k1 k2 p1 p2 [k3])"
             )
         _positive(self, "reopen_max_backoff_s")
+        if not (math.isfinite(self.stall_timeout_s) and self.stall_timeout_s >= 0.0):
+            raise ValueError(f"stall_timeout_s = {self.stall_timeout_s}: must be >= 0 (0: never)")
 
 
 @dataclass(frozen=True)

@@ -284,6 +284,55 @@ def test_reopen_after_the_server_goes_away_and_comes_back() -> None:
         second.stop()
 
 
+def test_a_live_camera_that_connects_but_stays_silent_is_reopened() -> None:
+    """A camera server that accepts the companion and then sends nothing (a hung
+    camera process) is noticed after ``stall_timeout_s`` and reopened, as the
+    companion's own configuration opens it; the second connection's frame arrives."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    port = listener.getsockname()[1]
+    held: list[socket.socket] = []
+    ok, jpeg = cv2.imencode(".jpg", _marked(3))
+    assert ok
+
+    def serve() -> None:
+        for n in range(2):
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            held.append(conn)  # the first stays open and silent
+            if n == 1:
+                conn.sendall(encode_sim_frame(jpeg.tobytes(), time.time()))
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    camera = open_camera(
+        CameraConfig(source=f"sim:127.0.0.1:{port}", stall_timeout_s=0.5, reopen_max_backoff_s=0.2)
+    )
+    try:
+        deadline = time.monotonic() + 10.0
+        frame = None
+        while frame is None and time.monotonic() < deadline:
+            try:
+                frame = camera.read(deadline - time.monotonic())
+            except CameraError:
+                continue  # "no frame for 0.5 s", then the reopen: status, not a crash
+        assert frame is not None and _mark_of(frame.image) == 3
+        assert camera.opens == 2 and len(held) == 2
+    finally:
+        camera.close()
+        listener.close()
+        for conn in held:
+            conn.close()
+        thread.join(5.0)
+
+
+def test_a_recording_is_never_reopened_for_silence(tmp_path: Path) -> None:
+    camera = open_camera(CameraConfig(source=f"frames:{tmp_path}", stall_timeout_s=0.5))
+    assert camera._stall_timeout_s is None
+    assert open_camera(CameraConfig(source="sim", stall_timeout_s=0.0))._stall_timeout_s is None
+
+
 def test_reopening_passes_end_of_stream_through(tmp_path: Path) -> None:
     cv2.imwrite(str(tmp_path / "1700000000000000.png"), _marked(0))
     camera = open_camera(CameraConfig(source=f"frames:{tmp_path}"))

@@ -122,13 +122,15 @@ def open_source(camera: CameraConfig) -> FrameSource:
     return Picamera2Source(*size)
 
 
-def open_camera(camera: CameraConfig, stall_timeout_s: float | None = None) -> ReopeningSource:
-    """The configured camera behind a ReopeningSource (the companion's normal use)."""
-    parse_source(camera.source)  # a malformed string is a config error, not a retry loop
+def open_camera(camera: CameraConfig) -> ReopeningSource:
+    """The configured camera behind a ReopeningSource (the companion's normal use): a
+    live one silent for ``stall_timeout_s`` is reopened; a recording never is."""
+    spec = parse_source(camera.source)  # a malformed string is a config error, not a retry loop
+    live = spec.kind not in ("file", "frames")
     return ReopeningSource(
         lambda: open_source(camera),
         max_backoff_s=camera.reopen_max_backoff_s,
         initial_backoff_s=min(0.2, camera.reopen_max_backoff_s),
-        stall_timeout_s=stall_timeout_s,
+        stall_timeout_s=camera.stall_timeout_s if live and camera.stall_timeout_s > 0 else None,
         name=camera.source,
     )

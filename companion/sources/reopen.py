@@ -89,17 +89,22 @@ class ReopeningSource:
                 # Wait for the next attempt or the deadline; close() cuts it short.
                 self._closed.wait(min(deadline, self._next_attempt_mono_s) - now)
                 continue
+            wait_s = max(0.0, deadline - now)
+            stall = self._stall_timeout_s
+            if stall is not None:  # wake in time to notice a stall within a long read
+                wait_s = min(wait_s, max(0.0, self._last_frame_mono_s + stall - now) + 0.01)
             try:
-                frame = self._source.read(max(0.0, deadline - now))
+                frame = self._source.read(wait_s)
             except EndOfStream:
                 raise
             except CameraTimeout:
-                stall = self._stall_timeout_s
                 if stall is not None and time.monotonic() - self._last_frame_mono_s > stall:
                     self._fail(f"{self.name}: no frame for {stall:.3g} s")
                     if time.monotonic() < deadline:
                         continue
                     break
+                if time.monotonic() < deadline:
+                    continue
                 raise
             except CameraError as exc:
                 self._fail(str(exc))
