@@ -130,8 +130,15 @@ class CameraServer:
                 sock, addr = self._listener.accept()
             except TimeoutError:
                 continue
-            except OSError:
-                return
+            except OSError as exc:
+                if self._stop.is_set():
+                    return  # the listener was closed
+                # A client gone before it was accepted (a companion killed while it
+                # connected): serve the next one. Returning here left the camera
+                # connectable but silent for every later client.
+                log.info("camera accept failed: %s", exc)
+                self._stop.wait(0.05)
+                continue
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             client = _Client(sock, addr, self.queue_frames)
             with self._lock:

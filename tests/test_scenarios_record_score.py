@@ -10,6 +10,7 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import tomllib
 from pathlib import Path
 
@@ -333,6 +334,37 @@ def test_camera_server_sends_length_time_jpeg_frames() -> None:
     finally:
         server.close()
     assert struct.calcsize(">IQ") == HEADER.size == 12
+
+
+def test_camera_server_keeps_accepting_after_a_failed_accept() -> None:
+    """A client that vanishes while it connects makes accept() fail once (here the
+    listener is made to fail, as a client reset before accept does): the next client
+    still gets frames."""
+    world = preset("light")
+    pose = TruePose(0.0, 4.3, 3.2, -0.1, 0.0, 0.0, 0.0)
+    clock = iter(START + 0.1 * k for k in range(10_000))
+    server = CameraServer(Renderer(world), lambda: (pose, next(clock)), fps=20.0)
+    real, failed = server._listener, threading.Event()
+
+    class FailingOnce:
+        def accept(self) -> tuple[socket.socket, object]:
+            if not failed.is_set():
+                failed.set()
+                raise ConnectionAbortedError(103, "Software caused connection abort")
+            return real.accept()
+
+        def __getattr__(self, name: str) -> object:
+            return getattr(real, name)
+
+    server._listener = FailingOnce()  # type: ignore[assignment]
+    server.start()
+    try:
+        assert failed.wait(5.0)
+        with socket.create_connection(real.getsockname(), timeout=10.0) as sock:
+            length, _t_us = HEADER.unpack(_read_exact(sock, HEADER.size))
+            assert len(_read_exact(sock, length - 8)) == length - 8
+    finally:
+        server.close()
 
 
 def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
