@@ -243,6 +243,18 @@ def test_sim_nobody_listening_is_a_camera_error() -> None:
             SimSource("127.0.0.1", port)
 
 
+def _first_frame(camera: ReopeningSource, within_s: float) -> Frame | None:
+    """The first frame within ``within_s``; a CameraError meanwhile (down, backing
+    off, reopening) is status, not a crash, so reading goes on."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        try:
+            return camera.read(deadline - time.monotonic())
+        except CameraError:
+            continue
+    return None
+
+
 def test_reopen_after_the_server_goes_away_and_comes_back() -> None:
     first = CameraServer()
     port = first.port
@@ -268,13 +280,7 @@ def test_reopen_after_the_server_goes_away_and_comes_back() -> None:
     second = CameraServer(port)  # back on the same port
     try:
         second.send_frame(_marked(4), time.time())
-        deadline = time.monotonic() + 5.0
-        frame = None
-        while frame is None and time.monotonic() < deadline:
-            try:
-                frame = camera.read(deadline - time.monotonic())
-            except CameraError:
-                continue  # still backing off: status, not a crash
+        frame = _first_frame(camera, 5.0)
         assert frame is not None and _mark_of(frame.image) == 4
         assert camera.healthy
         assert camera.opens == 2
@@ -310,13 +316,7 @@ def test_a_live_camera_that_connects_but_stays_silent_is_reopened() -> None:
         CameraConfig(source=f"sim:127.0.0.1:{port}", stall_timeout_s=0.5, reopen_max_backoff_s=0.2)
     )
     try:
-        deadline = time.monotonic() + 10.0
-        frame = None
-        while frame is None and time.monotonic() < deadline:
-            try:
-                frame = camera.read(deadline - time.monotonic())
-            except CameraError:
-                continue  # "no frame for 0.5 s", then the reopen: status, not a crash
+        frame = _first_frame(camera, 10.0)  # after "no frame for 0.5 s" and the reopen
         assert frame is not None and _mark_of(frame.image) == 3
         assert camera.opens == 2 and len(held) == 2
     finally:
