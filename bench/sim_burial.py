@@ -52,7 +52,7 @@ MIN_VIEW_PX = 300
 GATE_M = 1.0
 
 
-def _victim(rng: np.random.Generator, sleeves: Sleeves = "long") -> Victim:
+def _victim(rng: np.random.Generator, sleeves: Sleeves) -> Victim:
     child = rng.random() < 0.2
     pick = lambda palette: palette[int(rng.integers(len(palette)))]  # noqa: E731
     return Victim(

@@ -89,7 +89,7 @@ def _skeleton(
     left_arm_rad: float,
     right_arm_rad: float,
     leg_spread_rad: float,
-    sleeves: Sleeves = "long",
+    sleeves: Sleeves,
 ) -> list[tuple[str, int, str, F, F, float | F]]:
     """Solids in the supine body frame (m): (name, material, kind, a, b, radius|axes)."""
     k = height_m / 1.7
