@@ -15,7 +15,10 @@ Checks (all must pass; "checks" says which failed): every true victim the compan
 confirmed is at the HQ with exactly one HQ ID; no victim in the companion's store is
 missing at the HQ; every report the HQ acknowledged on the radio is in its registry;
 no unasked exit (so no restart loop), clean exits at the end, no traceback in any
-log. "Longest wait" of a victim: from the report time of its first report (its
+log; every person confirmed (each is in plain view for a third of the patrol); a
+companion up for more than 30 s never 30 s without a camera frame (a run on
+2026-11-26 confirmed 1 of 3 with a camera silent for 12 minutes, and passed the
+checks of then). "Longest wait" of a victim: from the report time of its first report (its
 confirmation) to the HQ's first receipt of any report of it; of a report: from its
 making to its storing at the HQ (resends after kills, restarts and losses included). ``make chaos`` runs it alone
 (CHAOS_SECONDS, default 1200, and CHAOS_SEED, default 16) and fails when a check

@@ -10,6 +10,10 @@ Wire format, per frame (the companion's "sim" camera source reads it):
 Every connected client gets every frame it can take: each has a small queue
 (``queue_frames``); when it is full the oldest frame is dropped, so a slow client
 sees fewer, fresh frames and the server's memory stays bounded.
+
+``silences``: each stretch of more than ``SILENCE_S`` in which no client got a
+frame, as (start, end) on the monotonic clock, from ``start()`` to ``close()``
+(the chaos mission checks that a running companion is never left without frames).
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from scenarios.render import MIN_VIEW_PX, Renderer, encode_jpeg
 log = logging.getLogger(__name__)
 
 HEADER = struct.Struct(">IQ")  # length of the rest, capture time in Unix µs
+SILENCE_S = 2.0  # a gap between two frames sent (to any client) longer than this is a silence
 
 
 def pack_frame(t_unix_s: float, jpeg: bytes) -> bytes:
@@ -85,6 +90,8 @@ class CameraServer:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.frames_rendered = 0
+        self.silences: list[tuple[float, float]] = []
+        self._last_sent_mono_s = time.monotonic()
         # Ground truth for scoring: when each victim first showed enough of itself.
         self.first_in_view_unix_s: dict[int, float] = {}
 
@@ -94,6 +101,7 @@ class CameraServer:
         return str(host), int(port)
 
     def start(self) -> CameraServer:
+        self._last_sent_mono_s = time.monotonic()
         for target, name in ((self._accept, "cam-accept"), (self._render, "cam-render")):
             t = threading.Thread(target=target, name=name, daemon=True)
             t.start()
@@ -108,6 +116,8 @@ class CameraServer:
 
     def close(self) -> None:
         """Stop rendering, disconnect clients; safe to call twice."""
+        if not self._stop.is_set():
+            self._note_sent()  # a silence up to now is one too
         self._stop.set()
         with self._lock:
             clients = list(self._clients)
@@ -156,6 +166,7 @@ class CameraServer:
                     continue
                 client.sock.sendall(packet)
                 client.sent += 1
+                self._note_sent()
         except OSError as exc:
             log.info("camera client %s gone: %s", client.addr, exc)
         finally:
@@ -164,6 +175,13 @@ class CameraServer:
                     self._clients.remove(client)
             with contextlib.suppress(OSError):
                 client.sock.close()
+
+    def _note_sent(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last_sent_mono_s > SILENCE_S:
+                self.silences.append((self._last_sent_mono_s, now))
+            self._last_sent_mono_s = now
 
     def _render(self) -> None:
         period_s = 1.0 / self.fps / self.time_scale

@@ -21,7 +21,9 @@ the companion's outbox holds no report and every victim it reported is at the HQ
   and no victim the companion's store reported is missing at the HQ;
 - every report the HQ acknowledged (seen on the radio) is in its registry;
 - no process exited without being asked to soon after its start (a restart loop),
-  nor at all; both stop cleanly at the end; no traceback in any log.
+  nor at all; both stop cleanly at the end; no traceback in any log;
+- every person is confirmed (each lies in plain view for a third of the patrol), and
+  a companion up for more than 30 s never goes 30 s without a camera frame.
 """
 
 from __future__ import annotations
@@ -43,7 +45,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from scenarios.chaoscheck import ChaosResult, check, companion_reported, hq_sources
+from scenarios.chaoscheck import (
+    ChaosResult,
+    check,
+    companion_reported,
+    hq_sources,
+    longest_silence_s,
+)
 from scenarios.live import LiveSim
 from scenarios.radio import Radio
 from scenarios.supervise import Supervised
@@ -279,6 +287,9 @@ def run_chaos(
             if filler is not None:
                 filler.unlink(missing_ok=True)
             sim.camera.close()  # no new news: what is known must now reach the HQ
+            result.longest_silence_s = longest_silence_s(
+                sim.camera.silences, [(r.started_mono_s, r.ended_mono_s) for r in companion.runs]
+            )
         say("chaos: mission over, camera off; waiting for the outbox to drain")
         state_db = state_dir / "companion.sqlite"
 

@@ -23,6 +23,8 @@ from scenarios.radio import RadioLog
 from scenarios.supervise import Supervised
 from scenarios.world import World
 
+CAMERA_GRACE_S = 30.0  # a companion's start (models, links) before frames must flow
+MAX_SILENCE_S = 30.0  # the longest a settled companion may go without a frame
 GATE_M = 1.0  # a reported victim within this of a true one is that person (bench.accuracy)
 ACK_ACCEPTED, ACK_DUPLICATE = 0, 1
 
@@ -50,6 +52,7 @@ class ChaosResult:
     longest_wait_s: float | None = None
     confirmed_at_s: list[float] = field(default_factory=list)  # mission time of each
     longest_report_wait_s: float | None = None
+    longest_silence_s: float = 0.0  # no frame for a companion running > CAMERA_GRACE_S
     companion_unplanned: int = 0
     companion_quick: int = 0
     hq_unplanned: int = 0
@@ -113,6 +116,9 @@ class ChaosResult:
                 if self.longest_report_wait_s is not None
                 else "n/a"
             ),
+            f"longest time without a frame, companion up > {CAMERA_GRACE_S:.0f} s, s": round(
+                self.longest_silence_s, 1
+            ),
             "drain after the mission, s": round(self.drain_s, 1)
             if self.drain_s is not None
             else "timed out",
@@ -167,6 +173,19 @@ def _listing(items: list[tuple[int, tuple[float, float]]], north_m: float, east_
         if math.hypot(n - north_m, e - east_m) <= 2 * GATE_M
     ]
     return ", ".join(near) or "none"
+
+
+def longest_silence_s(
+    silences: list[tuple[float, float]], runs: list[tuple[float, float | None]]
+) -> float:
+    """The longest part of a camera silence (start, end) that falls in a run (start,
+    end or None: still running) more than CAMERA_GRACE_S after its start."""
+    longest = 0.0
+    for s0, s1 in silences:
+        for r0, r1 in runs:
+            lo, hi = max(s0, r0 + CAMERA_GRACE_S), min(s1, math.inf if r1 is None else r1)
+            longest = max(longest, hi - lo)
+    return longest
 
 
 def check(
@@ -262,8 +281,18 @@ def check(
     )
     if result.tracebacks:
         fails.append(f"{result.tracebacks} tracebacks in the logs")
-    if result.true_confirmed == 0:
-        fails.append("the companion confirmed no true victim: nothing was tested")
+    if result.true_confirmed < result.true_victims:
+        # Each person lies in plain view across a third of the patrol: one not
+        # confirmed means the companion stopped seeing (a dead camera, a stuck loop).
+        fails.append(
+            f"the companion confirmed {result.true_confirmed} of the {result.true_victims}"
+            " people the rover passed in plain view"
+        )
+    if result.longest_silence_s > MAX_SILENCE_S:
+        fails.append(
+            f"a running companion got no camera frame for {result.longest_silence_s:.0f} s"
+            f" (at most {MAX_SILENCE_S:.0f} s)"
+        )
     if result.disk_note.startswith(("full", "not yet")):
         fails.append(f"state disk: {result.disk_note}")
 

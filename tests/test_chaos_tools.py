@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from scenarios.chaos import SPEED_M_S, chaos_world, patrol_route, plan_faults
+from scenarios.chaoscheck import CAMERA_GRACE_S, longest_silence_s
 from scenarios.radio import Radio
 from scenarios.supervise import Supervised
 
@@ -128,3 +129,15 @@ def test_supervisor_restarts_as_systemd_and_counts_a_restart_loop(tmp_path: Path
     finally:
         assert sleeper.stop() == -signal.SIGTERM
     assert (tmp_path / "sleeper.log").read_text().count("--- chaos: start sleeper") == 2
+
+
+def test_camera_silence_counts_only_while_the_companion_is_settled() -> None:
+    """A silence while the companion starts (its first CAMERA_GRACE_S) or is down
+    between a kill and its restart is not the companion's; the rest is."""
+    g = CAMERA_GRACE_S
+    runs = [(0.0, 100.0), (105.0, None)]
+    assert longest_silence_s([], runs) == 0.0
+    assert longest_silence_s([(0.0, g)], runs) == 0.0  # the first start
+    assert longest_silence_s([(100.0, 105.0 + g)], runs) == 0.0  # down, then restarting
+    assert longest_silence_s([(g + 10.0, g + 50.0)], runs) == 40.0
+    assert longest_silence_s([(90.0, 400.0)], runs) == 400.0 - (105.0 + g)  # across a kill

@@ -11,6 +11,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 import tomllib
 from pathlib import Path
 
@@ -365,6 +366,31 @@ def test_camera_server_keeps_accepting_after_a_failed_accept() -> None:
             assert len(_read_exact(sock, length - 8)) == length - 8
     finally:
         server.close()
+
+
+def test_camera_server_records_a_stretch_without_frames_sent() -> None:
+    """The chaos mission's check that a running companion always gets frames reads
+    these: no client for 2.5 s after the start is one silence, ended by the first
+    frame sent; a client taking frames makes none; close() ends a pending one."""
+    world = preset("light")
+    pose = TruePose(0.0, 4.3, 3.2, -0.1, 0.0, 0.0, 0.0)
+    clock = iter(START + 0.1 * k for k in range(10_000))
+    server = CameraServer(Renderer(world), lambda: (pose, next(clock)), fps=20.0).start()
+    started = time.monotonic()
+    try:
+        time.sleep(2.5)
+        assert server.silences == []  # still open: ended by the next frame sent
+        with socket.create_connection(server.address, timeout=10.0) as sock:
+            for _ in range(5):
+                length, _t_us = HEADER.unpack(_read_exact(sock, HEADER.size))
+                _read_exact(sock, length - 8)
+        assert len(server.silences) == 1
+        s0, s1 = server.silences[0]
+        assert abs(s0 - started) < 0.5 and 2.4 < s1 - s0 < 5.0
+        time.sleep(2.5)  # the client is gone: a second silence, ended by close()
+    finally:
+        server.close()
+    assert len(server.silences) == 2 and server.silences[1][1] - server.silences[1][0] > 2.0
 
 
 def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
