@@ -253,7 +253,7 @@ def test_visibility_without_geometry_uses_the_bodys_own_extent() -> None:
 def test_a_lone_face_is_critical_against_a_whole_body(detector: PeopleDetector) -> None:
     """A lone face 30 px high: a body ~230 px tall behind it; 30x30 visible is ~6 %."""
     body = detector._part(
-        "face", 0.9, np.array([100, 100, 130, 130]), np.zeros((480, 640)), 640, 480
+        "face", 0.9, np.array([100, 100, 130, 130]), lambda: np.zeros((480, 640)), 640, 480
     )
     det = detector._detection(body, None, 0.0, 640, 480)
     assert det is not None and det.cues == ("face",)

@@ -9,7 +9,8 @@ Models (companion/vision/models.py; all Apache-2.0, run on one CPU thread):
   body points (all of them, visible or not) and a mask of the body's visible
   pixels; its pose flag says whether a person is really in the crop;
 - selfie segmentation (144x256, the whole frame): person pixels; it also paints
-  some non-people (a red car), so it only ever measures a body another cue found;
+  some non-people (a red car), so it only ever measures a body another cue found,
+  and runs only on frames that have one without landmarks or a lone part;
 - palm detector (192x192) and full-range face detector (192x192): the small parts
   that stay visible under rubble, alone or as support for a body.
 
@@ -31,8 +32,10 @@ Where the body lies: ``floorpoint.py``.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -307,7 +310,12 @@ class PeopleDetector:
         return cv2.resize(prob, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_LINEAR)
 
     def _body(
-        self, rgb: np.ndarray, seg: np.ndarray, score: float, kp: np.ndarray, box: np.ndarray
+        self,
+        rgb: np.ndarray,
+        seg: Callable[[], np.ndarray],
+        score: float,
+        kp: np.ndarray,
+        box: np.ndarray,
     ) -> _Body:
         p = self.params
         hw = rgb.shape[:2]
@@ -326,7 +334,7 @@ class PeopleDetector:
             lm_prob = rect.paste(1.0 / (1.0 + np.exp(-np.clip(lm_logit, -30, 30))), hw)
             mask = lm_prob > p.mask_threshold
         else:
-            mask = (seg > p.mask_threshold) & (region > 0)
+            mask = (seg() > p.mask_threshold) & (region > 0)
         if mask.any():
             cues.add("mask")
         x0, y0, x1, y1 = (float(b) for b in box)
@@ -352,7 +360,9 @@ class PeopleDetector:
             image_bgr = self.enhancer(image_bgr)
         rgb = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2RGB)
         h, w = rgb.shape[:2]
-        seg = self._segmentation(rgb)
+        # The whole-frame segmentation only measures bodies without landmarks and lone
+        # parts: run on first use (most frames need none of it: ~4 ms saved).
+        seg = functools.cache(lambda: self._segmentation(rgb))
         bodies: list[_Body] = []
         for view in self._passes(geometry, w, h):
             for d, box, kp in self._persons(rgb, view):
@@ -390,18 +400,24 @@ class PeopleDetector:
         return out
 
     def _part(
-        self, kind: str, score: float, box: np.ndarray, seg: np.ndarray, w: int, h: int
+        self,
+        kind: str,
+        score: float,
+        box: np.ndarray,
+        seg: Callable[[], np.ndarray],
+        w: int,
+        h: int,
     ) -> _Body:
         x0, y0 = max(0.0, float(box[0])), max(0.0, float(box[1]))
         x1, y1 = min(float(w), float(box[2])), min(float(h), float(box[3]))
         region = np.zeros((h, w), np.uint8)
         region[int(y0) : math.ceil(y1), int(x0) : math.ceil(x1)] = 1
-        mask = (seg > self.params.mask_threshold) & (region > 0)
+        mask = (seg() > self.params.mask_threshold) & (region > 0)
         cues = {kind}
         box_area = max(1.0, (x1 - x0) * (y1 - y0))
         if mask.sum() >= self.params.min_part_mask_share * box_area:
             cues.add("mask")
-            body = self._attached_body(seg, mask, box_area)
+            body = self._attached_body(seg(), mask, box_area)
             if body is not None:
                 # The part belongs to a body the person detector missed (too near, cut
                 # by the frame): the body is what is visible, not the part alone.
