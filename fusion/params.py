@@ -82,6 +82,15 @@ class TrackerParams:
     # track) lost 2 of seed1's 4 victims, seen in bursts from one side, and at 5
     # degrees kept its false one (suite, 2026-11-26): not done.
     confirm_log_odds: float = 2.5
+    # Nor is a tentative track confirmed within this distance (m) of a confirmed
+    # victim, whatever the chi-square says, unless the two were detected in the
+    # same frame (two people side by side): one body's fixes scatter that far (its
+    # near edge seen from either side, a frame-cut view) and never come together.
+    # In the 20-minute chaos mission the rover's passes over the people confirmed a
+    # second ID for one of them 8 times, each merged seconds later and announced
+    # twice (suite and a replay of the chaos patrol, 2026-11-27: 4 such merges -> 0;
+    # at 0.8 m, 2 were left).
+    same_victim_m: float = 1.0
     delete_log_odds: float = -1.5  # tentative tracks die below this
     max_log_odds: float = 8.0  # clamp, so a long-seen track can still lose support
     tentative_timeout_s: float = 20.0  # a tentative track not seen this long dies
@@ -108,6 +117,7 @@ class TrackerParams:
         _require(self.miss_log_odds <= 0.0, self, "miss_log_odds", "must be <= 0")
         _require(self.miss_max_range_m > 0.0, self, "miss_max_range_m", "must be > 0")
         _require(self.confirm_log_odds > 0.0, self, "confirm_log_odds", "must be > 0")
+        _require(self.same_victim_m >= 0.0, self, "same_victim_m", "must be >= 0")
         _require(self.delete_log_odds < 0.0, self, "delete_log_odds", "must be < 0")
         _require(
             self.max_log_odds >= self.confirm_log_odds,

@@ -31,6 +31,9 @@ class Track:
     victim_id: int = 0  # 0 until confirmed
     merged_into: int | None = None
     matched: bool = field(default=False, repr=False)  # in the current update
+    # Confirmed tracks detected in the same frame as this tentative one (so not the
+    # same body); not stored: a tentative track does not outlive a restart.
+    seen_with: set[int] = field(default_factory=set, repr=False)
 
     @property
     def x(self) -> FloatArray:

@@ -38,9 +38,12 @@ Per ``update`` (one processed camera frame, with or without detections):
    become NOT_SEEN_RECENTLY, and CONFIRMED again when seen;
 6. two confirmed victims whose difference is within ``merge_chi2`` merge: the older
    ID survives with the fused estimate, the younger becomes MERGED. A tentative
-   track within ``merge_chi2`` of a confirmed victim is not confirmed (it is most
-   likely a stray fix of that victim); it waits until it separates, or dies. It is
-   not fused into the victim either: clutter next to a victim must not pull it.
+   track within ``merge_chi2`` of a confirmed victim, or within ``same_victim_m`` of
+   one it was never detected in the same frame with, is not confirmed (it is most
+   likely a stray fix of that victim: two people side by side are two detections in
+   one frame, one body's scattered fixes are not); it waits until it separates, or
+   dies. It is not fused into the victim either: clutter next to a
+   victim must not pull it.
 
 The gating, assignment and closeness tests of steps 2, 3 and 6 are
 ``fusion.association``; a track's state and its two outward forms (the ``Victim``
@@ -143,6 +146,7 @@ class VictimTracker:
         self._correct(live, p, observations, pairs)
         for i, j in pairs:
             self._hit(live[i], observations[j], events)
+        self._note_seen_together([live[i] for i, _ in pairs])
         self._spawn(live, observations, pairs, d2, now_unix_s)
         self._negative_evidence(live, in_view)
         self._life_cycle(live, now_unix_s, events)
@@ -240,6 +244,15 @@ class VictimTracker:
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
 
+    @staticmethod
+    def _note_seen_together(matched: list[Track]) -> None:
+        """Tentative tracks detected in the same frame as a confirmed one are another
+        body, however near (``same_victim_m`` does not hold them back)."""
+        confirmed = {t.track_id for t in matched if t.state in _CONFIRMED}
+        for t in matched:
+            if t.state == TrackState.TENTATIVE:
+                t.seen_with |= confirmed
+
     def _reclassify(self, t: Track) -> bool:
         """Refresh the visibility estimate and the class; True if the class changed."""
         t.visibility_pct = weighted_median([h[1] for h in t.history], [h[2] for h in t.history])
@@ -285,7 +298,13 @@ class VictimTracker:
         for t in live:
             if t.state == TrackState.TENTATIVE:
                 if t.log_odds >= p.confirm_log_odds:
-                    if closest_pair([t], confirmed, p.merge_chi2, p.max_match_distance_m) is None:
+                    if closest_pair(
+                        [t], confirmed, p.merge_chi2, p.max_match_distance_m
+                    ) is None and not _within(
+                        t,
+                        [c for c in confirmed if c.track_id not in t.seen_with],
+                        p.same_victim_m,
+                    ):
                         self._confirm(t, events)
                         confirmed.append(t)
                     # else: a stray fix of a known victim; it waits, tentative, until
@@ -388,3 +407,10 @@ class VictimTracker:
                 tracker._by_victim[t.victim_id] = t
         codec.check_links(tracker._by_victim.keys(), [r.merged_into for r in records])
         return tracker
+
+
+def _within(t: Track, others: list[Track], distance_m: float) -> bool:
+    """Whether ``t``'s estimate lies within ``distance_m`` of any of ``others``'."""
+    return any(
+        math.hypot(float(t.x[0] - o.x[0]), float(t.x[1] - o.x[1])) < distance_m for o in others
+    )

@@ -140,7 +140,8 @@ def test_association_prefers_the_sharper_track_and_keeps_ids() -> None:
 
 
 def test_two_converging_confirmed_tracks_merge_into_the_older() -> None:
-    tracker = VictimTracker(PARAMS)
+    # Two tracks 0.6 m apart confirm only without the same-victim distance (below).
+    tracker = VictimTracker(TrackerParams(same_victim_m=0.0))
     tight = 0.01
     older = younger = 0
     for k in range(3):
@@ -164,6 +165,23 @@ def test_two_converging_confirmed_tracks_merge_into_the_older() -> None:
     assert survivor.north_m == pytest.approx(0.3, abs=0.1)
     states = {v.victim_id: v.state for v in tracker.victims()}
     assert states == {older: TrackState.CONFIRMED, younger: TrackState.MERGED}
+
+
+def test_a_second_fix_cluster_near_a_victim_is_not_a_second_victim() -> None:
+    """Fixes of one body 0.6 m from its confirmed victim (its near edge seen from the
+    other side), sharp enough to fall outside every chi-square gate, stay a tentative
+    track: no second victim, no merge announced later. 1.5 m away is another person."""
+    tight = 0.01
+    for offset_m, victims in ((0.6, 1), (1.5, 2)):
+        tracker = VictimTracker(PARAMS)
+        first = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+        events = []
+        for k in range(10, 40):
+            events += tracker.update([obs(offset_m, 0.0, k, tight)], T0 + k, always)
+        confirmed = [e.victim.victim_id for e in events if e.kind == EventKind.CONFIRMED]
+        assert len(tracker.victims()) == victims, offset_m
+        assert confirmed == ([] if victims == 1 else [first + 1]), offset_m
+        assert not [e for e in events if e.kind == EventKind.MERGED]
 
 
 def test_weighted_median() -> None:
