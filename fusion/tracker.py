@@ -42,8 +42,8 @@ Per ``update`` (one processed camera frame, with or without detections):
    one it was never detected in the same frame with, is not confirmed (it is most
    likely a stray fix of that victim: two people side by side are two detections in
    one frame, one body's scattered fixes are not); it waits until it separates, or
-   dies. It is not fused into the victim either: clutter next to a
-   victim must not pull it.
+   dies. It is not fused into the victim either: clutter next to a victim must not
+   pull it.
 
 The gating, assignment and closeness tests of steps 2, 3 and 6 are
 ``fusion.association``; a track's state and its two outward forms (the ``Victim``
@@ -298,13 +298,7 @@ class VictimTracker:
         for t in live:
             if t.state == TrackState.TENTATIVE:
                 if t.log_odds >= p.confirm_log_odds:
-                    if closest_pair(
-                        [t], confirmed, p.merge_chi2, p.max_match_distance_m
-                    ) is None and not _within(
-                        t,
-                        [c for c in confirmed if c.track_id not in t.seen_with],
-                        p.same_victim_m,
-                    ):
+                    if not self._near_a_victim(t, confirmed):
                         self._confirm(t, events)
                         confirmed.append(t)
                     # else: a stray fix of a known victim; it waits, tentative, until
@@ -320,6 +314,18 @@ class VictimTracker:
             ):
                 t.state = TrackState.NOT_SEEN_RECENTLY
                 events.append(TrackEvent(EventKind.NOT_SEEN_RECENTLY, victim_of(t)))
+
+    def _near_a_victim(self, t: Track, confirmed: list[Track]) -> bool:
+        """Whether tentative ``t`` is likely a stray fix of a confirmed victim: within
+        ``merge_chi2``, or within ``same_victim_m`` of one it was never seen with."""
+        p = self._params
+        if closest_pair([t], confirmed, p.merge_chi2, p.max_match_distance_m) is not None:
+            return True
+        return any(
+            math.hypot(float(t.x[0] - c.x[0]), float(t.x[1] - c.x[1])) < p.same_victim_m
+            for c in confirmed
+            if c.track_id not in t.seen_with
+        )
 
     def _confirm(self, t: Track, events: list[TrackEvent]) -> None:
         t.state = TrackState.CONFIRMED
@@ -407,10 +413,3 @@ class VictimTracker:
                 tracker._by_victim[t.victim_id] = t
         codec.check_links(tracker._by_victim.keys(), [r.merged_into for r in records])
         return tracker
-
-
-def _within(t: Track, others: list[Track], distance_m: float) -> bool:
-    """Whether ``t``'s estimate lies within ``distance_m`` of any of ``others``'."""
-    return any(
-        math.hypot(float(t.x[0] - o.x[0]), float(t.x[1] - o.x[1])) < distance_m for o in others
-    )
