@@ -84,8 +84,9 @@ class TrackerParams:
     confirm_log_odds: float = 2.5
     # Nor is a tentative track confirmed within this distance (m) of a confirmed
     # victim, whatever the chi-square says, unless the two were detected in the
-    # same frame (two people side by side): one body's fixes scatter that far (its
-    # near edge seen from either side, a frame-cut view) and never come together.
+    # same frame (two people side by side): one body's fixes scatter that far (a
+    # lone face or hand of it, its near edge seen from either side, a frame-cut
+    # view) and never come together.
     # In the 20-minute chaos mission the rover's passes over the people confirmed a
     # second ID for one of them 8 times, each merged seconds later and announced
     # twice (suite and a replay of the chaos patrol, 2026-11-27: 4 such merges -> 0;

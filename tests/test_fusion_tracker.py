@@ -168,9 +168,11 @@ def test_two_converging_confirmed_tracks_merge_into_the_older() -> None:
 
 
 def test_a_second_fix_cluster_near_a_victim_is_not_a_second_victim() -> None:
-    """Fixes of one body 0.6 m from its confirmed victim (its near edge seen from the
-    other side), sharp enough to fall outside every chi-square gate, stay a tentative
-    track: no second victim, no merge announced later. 1.5 m away is another person."""
+    """Fixes of one body 0.6 m from its confirmed victim (a lone face or hand of it,
+    its near edge seen from the other side), sharp enough to fall outside every
+    chi-square gate and never in one frame with the victim, stay a tentative track:
+    no second victim, no merge announced later. 1.5 m away is another person. (Two
+    detections in one frame 0.6 m apart are two people: the duplicate test below.)"""
     tight = 0.01
     for offset_m, victims in ((0.6, 1), (1.5, 2)):
         tracker = VictimTracker(PARAMS)
