@@ -30,7 +30,14 @@ $(STAMP): pyproject.toml $(SYSTAMP)
 	$(BIN)/rescue-hq assets fetch
 	@touch $@
 
-demo: $(STAMP)
+# A set-up from before a model was added to companion/vision/models.py fetches it here
+# (the fetch checks every file by sha256 and downloads only what is missing).
+MODELS := $(VENV)/.models
+$(MODELS): companion/vision/models.py $(STAMP)
+	$(BIN)/rescue-companion models fetch
+	@touch $@
+
+demo: $(STAMP) $(MODELS)
 	$(BIN)/rescue-sim demo
 
 test: $(STAMP) lint typecheck pytest
@@ -42,10 +49,10 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy companion mavlink_io fusion scenarios hq npmfetch
 
-pytest: $(STAMP)
+pytest: $(STAMP) $(MODELS)
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)
+bench: $(STAMP) $(MODELS)
 	$(BIN)/python -m bench
 
 # A simulated mission under radio loss, kills, restarts, a reboot and a full disk
@@ -53,12 +60,12 @@ bench: $(STAMP)
 # otherwise; writes its section of BENCHMARKS.md and fails when a check fails.
 CHAOS_SECONDS ?= 1200
 CHAOS_SEED ?= 16
-chaos: $(STAMP)
+chaos: $(STAMP) $(MODELS)
 	CHAOS_SECONDS=$(CHAOS_SECONDS) CHAOS_SEED=$(CHAOS_SEED) $(BIN)/python -m bench.chaos
 
 # The vehicle-link fuzzer for 60 s with a fresh seed (the default test run gives it
 # 3 s with seed 16); a failure prints the seed, FUZZ_SEED=<seed> repeats it.
-fuzz-companion: $(STAMP)
+fuzz-companion: $(STAMP) $(MODELS)
 	FUZZ_SECONDS=$${FUZZ_SECONDS:-60} FUZZ_SEED=$${FUZZ_SEED:-$$(date +%s)} \
 		$(BIN)/python -m pytest -q tests/test_mavlink_vehicle_fuzz.py
 

@@ -291,3 +291,52 @@ def test_a_lying_body_whose_joints_miss_the_floor_is_placed_by_its_near_edge() -
     assert heading is None  # nothing in view tells the body's axis
     assert 0.1 < placed[0] - edge[0] < 0.3  # half a body's width beyond its near edge
     assert np.hypot(*(placed - ankles)) > 1.0
+
+
+def _sim_frame(preset_name: str, t_s: float, north_m: float, east_m: float, yaw_rad: float):  # type: ignore[no-untyped-def]
+    from scenarios.motion import TruePose
+    from scenarios.render import Renderer
+    from scenarios.world import preset
+
+    pose = TruePose(t_s, north_m, east_m, 0.0, 0.0, 0.0, yaw_rad)
+    return Renderer(preset(preset_name)).render(pose, frame_key=1).image
+
+
+def test_a_lone_palm_counts_only_when_the_hand_model_sees_a_hand() -> None:
+    """The palm detector alone fires on the simulator's skin-coloured planks as on its
+    exposed hands. The hand landmark model tells them apart: the arm and hand out of
+    the rubble of the ``critical`` preset is a lone hand, the plank of the
+    ``skin_debris`` preset (palm score 0.76 from this pose) is nothing."""
+    detector = PeopleDetector(PeopleParams(parts_take_turns=False), None, 0.5)
+    hand = _sim_frame("critical", 81.5, 5.99, 4.036, -0.38)
+    rgb = cv2.cvtColor(hand, cv2.COLOR_BGR2RGB)
+    palms = detector._ssd(detector._palm, PALM_SPEC, "palm", rgb, 0.0)
+    assert [detector._hand_flag(rgb, b, k) >= 0.5 for _d, b, k in palms] == [True]
+    assert [
+        d for d in detector.detect(hand, None, 0.0) if "hand" in d.cues and "person" not in d.cues
+    ]
+    plank = _sim_frame("skin_debris", 72.75, 2.49, 4.059, -0.38)
+    rgb = cv2.cvtColor(plank, cv2.COLOR_BGR2RGB)
+    palms = detector._ssd(detector._palm, PALM_SPEC, "palm", rgb, 0.0)
+    assert palms and max(d.score for d, _b, _k in palms) >= 0.5  # the palm detector fires
+    assert all(detector._hand_flag(rgb, b, k) < 0.1 for _d, b, k in palms)
+    assert not [d for d in detector.detect(plank, None, 0.0) if "hand" in d.cues]
+
+
+def test_live_detector_looks_again_for_a_hand_it_just_saw() -> None:
+    """Live, the palm detector runs every other frame, but on the frame after a lone
+    hand too: a rover passing an exposed hand sees it for a second or so."""
+    live = PeopleDetector(PeopleParams(), None, 0.5)
+    hand = _sim_frame("critical", 81.5, 5.99, 4.036, -0.38)
+    runs = []
+    real = live._palm
+
+    class Counting:
+        def __call__(self, x):  # type: ignore[no-untyped-def]
+            runs.append(live._parts_turn)
+            return real(x)
+
+    live._palm = Counting()  # type: ignore[assignment]
+    hands = [any("hand" in d.cues for d in live.detect(hand, None, 0.0)) for _ in range(4)]
+    assert hands == [False, True, True, True]  # the face's turn first, then every frame
+    assert len(runs) == 3

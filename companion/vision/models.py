@@ -93,6 +93,14 @@ MODELS: dict[str, ModelFile] = {
             "palm detector (192x192): exposed hands",
         ),
         ModelFile(
+            "hand_landmark_lite.tflite",
+            HANDS,
+            "package/hand_landmark_lite.tflite",
+            "d7fde8ac11f8ce03f8663775bfc323f4fc9f2a38062b4f4efa142874ef5b2a48",
+            None,
+            "hand landmarks, lite (224x224): whether a lone palm is a hand",
+        ),
+        ModelFile(
             "face_detection_full_range.tflite",
             FACE,
             "package/face_detection_full_range.tflite",

@@ -12,7 +12,10 @@ Models (companion/vision/models.py; all Apache-2.0, run on one CPU thread):
   some non-people (a red car), so it only ever measures a body another cue found,
   and runs only on frames that have one without landmarks or a lone part;
 - palm detector (192x192) and full-range face detector (192x192): the small parts
-  that stay visible under rubble, alone or as support for a body.
+  that stay visible under rubble, alone or as support for a body;
+- hand landmarks (224x224, the crop MediaPipe's hand tracker takes around a palm):
+  its hand flag says whether a lone palm is a hand (the palm detector alone also
+  fires on skin-coloured planks).
 
 Fusion, per frame:
 
@@ -62,6 +65,9 @@ PALM_SPEC = ssd.SsdSpec(192, (8, 16, 16, 16), 7, 0.5)
 FACE_SPEC = ssd.SsdSpec(192, (4,), 6, 0.5, interpolated_scale=False)
 
 LANDMARK_PX = 256
+HAND_PX = 224  # the hand landmark model's input
+HAND_CROP_SCALE = 2.6  # MediaPipe's palm-to-hand crop: 2.6 palm boxes,
+HAND_CROP_SHIFT = 0.5  # shifted half a box towards the fingers
 
 # Proportions of an adult (share of standing height): for a body's own extent in a
 # photo, and for the whole body behind a lone face or hand.
@@ -75,11 +81,16 @@ class PeopleParams:
     person_min_score: float = 0.5  # BlazePose person detector
     landmark_min_flag: float = 0.5  # landmark model's "a person is in this crop"
     face_min_score: float = 0.75  # a face that stands alone (supporting: person_min_score)
-    # A palm that stands alone. The scenario suite's exposed hands score 0.5-0.8 on
-    # a few frames each; lowered to 0.55-0.7 (with and without the face/palm turns)
-    # it found 1 to 3 of the 7 hand-only victims but made 1 to 4 more false victims
-    # on skin-coloured debris (2026-11-27), so it stays at 0.8.
-    palm_min_score: float = 0.8
+    # A palm that stands alone (no body around it) is a hand when the hand landmark
+    # model, on the crop around it, flags a hand (``hand_min_flag``). The palm
+    # detector alone scores 0.5-0.86 on the simulator's exposed hands and on its
+    # skin-coloured planks and wedges alike; the hand flag reads 0.00-0.03 on every
+    # plank and 0.84-0.98 on the hands seen near (scenario suite, 2026-11-27). Before,
+    # a lone palm needed a score of 0.8 and no check: no hand-only victim was found,
+    # and lowering the score alone found 1-3 of 7 with 1-4 more false victims.
+    palm_min_score: float = 0.5
+    hand_min_flag: float = 0.5
+    max_hand_checks: int = 3  # hand landmark crops per frame (~5 ms each on one core)
     part_support_score: float = 0.5  # a face or palm that supports a body
     mask_threshold: float = 0.5
     max_bodies: int = 4  # landmark crops per frame (each ~10 ms on one core)
@@ -94,7 +105,9 @@ class PeopleParams:
     # The face (~5 ms) and palm (~12 ms) detectors look for the small exposed parts of
     # a buried person. Live they take turns, one per frame, as the extra passes do (a
     # hand in view for a second is still searched five times at 10 frames/s); False
-    # runs both on every frame, as for a single photo.
+    # runs both on every frame, as for a single photo. After a frame with a hand, the
+    # palm detector runs on the next frame too (a rover passing an exposed hand sees
+    # it for a second or so: every frame of it counts towards a victim).
     parts_take_turns: bool = True
     far_tiles: bool = True  # tiles of the far floor band (needs the frame's geometry)
     # Without a geometry (a photo) the far band is unknown: a 2:1 tile of this share of
@@ -205,8 +218,10 @@ class PeopleDetector:
         self._segment = Model(models.model_path("selfie_segmentation_landscape.tflite", model_dir))
         self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir))
         self._face = Model(models.model_path("face_detection_full_range.tflite", model_dir))
+        self._hand = Model(models.model_path("hand_landmark_lite.tflite", model_dir))
         self._frame = 0  # extra passes run, for their turns
         self._parts_turn = 0  # frames searched for parts, for the face/palm turns
+        self._hand_seen = False  # the last frame had a lone hand: look again, out of turn
         self._anchors = {
             "pose": ssd.anchors(POSE_SPEC),
             "palm": ssd.anchors(PALM_SPEC),
@@ -382,9 +397,11 @@ class PeopleDetector:
         self._parts_turn += 1
         if not p.parts_take_turns or turn % 2 == 0:
             parts += [("face", x) for x in self._ssd(self._face, FACE_SPEC, "face", rgb, -1.0)]
-        if not p.parts_take_turns or turn % 2 == 1:
+        if not p.parts_take_turns or turn % 2 == 1 or self._hand_seen:
             parts += [("hand", x) for x in self._ssd(self._palm, PALM_SPEC, "palm", rgb, 0.0)]
-        for kind, (d, box, _kp) in parts:
+        self._hand_seen = False
+        checks = 0
+        for kind, (d, box, kp) in parts:
             cx = int(np.clip((box[0] + box[2]) / 2, 0, w - 1))
             cy = int(np.clip((box[1] + box[3]) / 2, 0, h - 1))
             owner = next((b for b in bodies if b.region[cy, cx]), None)
@@ -392,9 +409,16 @@ class PeopleDetector:
                 if d.score >= p.part_support_score:
                     owner.cues.add(kind)
                 continue
-            lone_min = p.face_min_score if kind == "face" else p.palm_min_score
-            if d.score < lone_min:
-                continue
+            if kind == "face":
+                if d.score < p.face_min_score:
+                    continue
+            else:
+                if d.score < p.palm_min_score or checks >= p.max_hand_checks:
+                    continue
+                checks += 1
+                if self._hand_flag(rgb, box, kp) < p.hand_min_flag:
+                    continue
+                self._hand_seen = True
             bodies.append(self._part(kind, d.score, box, seg, w, h))
         out = []
         for b in bodies:
@@ -402,6 +426,21 @@ class PeopleDetector:
             if det is not None and det.score >= self.min_score:
                 out.append(det)
         return out
+
+    def _hand_flag(self, rgb: np.ndarray, box: np.ndarray, kp: np.ndarray) -> float:
+        """The hand landmark model's "a hand is in this crop" (0-1) for a palm box and
+        its keypoints in frame pixels. The crop is the one MediaPipe's hand tracker
+        takes: turned so that the wrist (keypoint 0) lies below the middle finger's
+        knuckle (keypoint 2), 2.6 times the palm box, shifted half a box towards the
+        fingers."""
+        w, h = float(box[2] - box[0]), float(box[3] - box[1])
+        (x0, y0), (x2, y2) = kp[0], kp[2]
+        angle = math.pi / 2 - math.atan2(-(y2 - y0), x2 - x0)
+        cx = (box[0] + box[2]) / 2 + HAND_CROP_SHIFT * h * math.sin(angle)
+        cy = (box[1] + box[3]) / 2 - HAND_CROP_SHIFT * h * math.cos(angle)
+        rect = RotatedRect(float(cx), float(cy), max(HAND_CROP_SCALE * max(w, h), 8.0), angle)
+        out = self._hand(to_range(rect.crop(rgb, HAND_PX), 0.0, 1.0))
+        return float(out[1].reshape(-1)[0])
 
     def _part(
         self,
