@@ -26,6 +26,8 @@ from fusion.registry import TrackEvent
 from fusion.tracker import VictimTracker
 from fusion.types import Detection, Observation, PoseSample
 
+PARTS = {"hand", "face"}  # cues of a lone exposed part (people backend)
+
 log = logging.getLogger(__name__)
 
 
@@ -136,4 +138,5 @@ class Pipeline:
             visibility_pct=assessment.visibility_pct,
             quality=det.score,
             range_m=fix.range_m,
+            part_only=bool(PARTS & set(det.cues)) and "person" not in det.cues,
         )

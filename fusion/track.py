@@ -34,6 +34,8 @@ class Track:
     # Confirmed tracks detected in the same frame as this tentative one (so not the
     # same body); not stored: a tentative track does not outlive a restart.
     seen_with: set[int] = field(default_factory=set, repr=False)
+    # Seen as a body, not only as a lone part, since this instance started (not stored).
+    body_seen: bool = field(default=False, repr=False)
 
     @property
     def x(self) -> FloatArray:

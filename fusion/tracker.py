@@ -23,7 +23,9 @@ Per ``update`` (one processed camera frame, with or without detections):
    method over the gated pairs, cost d^2 + ln det S (the negative log-likelihood,
    so a broad track does not steal a detection from a sharp one);
 3. matched tracks are updated and gain ``hit_log_odds`` (a RESCUED or FALSE_ALARM
-   track absorbs its observations: no support, no events); an unmatched
+   track absorbs its observations: no support, no events; a lone part, a hand or a
+   face, of a victim already seen as a body only supports it: where a hand lies is
+   not where its body lies, nor does it show how much of the body is buried); an unmatched
    observation within ``new_track_exclusion_chi2`` of a live track is an outlier or
    a duplicate detection of it and is dropped, as is one within ``merge_chi2`` of
    another observation starting a track in the same frame (else one victim detected
@@ -217,6 +219,11 @@ class VictimTracker:
         results go back into each track's filter."""
         if not pairs:
             return
+        # A lone part of a victim seen whole (its hand, 0.5-0.8 m from where the body
+        # lies) is support for it, not a fix of its position.
+        pairs = [(i, j) for i, j in pairs if not _part_of_body(live[i], observations[j])]
+        if not pairs:
+            return
         ti = [i for i, _ in pairs]
         oj = [j for _, j in pairs]
         x = np.array([live[i].x for i in ti])
@@ -240,6 +247,9 @@ class VictimTracker:
         if t.state == TrackState.NOT_SEEN_RECENTLY:
             t.state = TrackState.CONFIRMED
             events.append(TrackEvent(EventKind.SEEN_AGAIN, victim_of(t)))
+        if _part_of_body(t, obs):
+            return  # its hand alone says nothing of how much of the body shows
+        t.body_seen = t.body_seen or not obs.part_only
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
@@ -278,6 +288,7 @@ class VictimTracker:
             urgency=Urgency.from_visibility(obs.visibility_pct),
             visibility_pct=obs.visibility_pct,
             matched=True,
+            body_seen=not obs.part_only,
         )
         self._next_track_id += 1
         self._tracks[t.track_id] = t
@@ -413,3 +424,8 @@ class VictimTracker:
                 tracker._by_victim[t.victim_id] = t
         codec.check_links(tracker._by_victim.keys(), [r.merged_into for r in records])
         return tracker
+
+
+def _part_of_body(t: Track, obs: Observation) -> bool:
+    """A lone part (a hand, a face) matched to a victim already seen as a body."""
+    return obs.part_only and t.body_seen

@@ -185,6 +185,9 @@ class Observation:
     visibility_pct: float
     quality: float  # weight of this observation's visibility in [0, 1]
     range_m: float  # camera-to-point distance
+    # Only an exposed part was seen (a lone hand or face, no body): where the part
+    # is, and how much of a body it shows, but not where a body seen whole lies.
+    part_only: bool = False
 
     def __post_init__(self) -> None:
         _check_finite(

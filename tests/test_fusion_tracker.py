@@ -4,6 +4,7 @@ marks, persistence errors, reports."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from typing import Any
 
@@ -184,6 +185,29 @@ def test_a_second_fix_cluster_near_a_victim_is_not_a_second_victim() -> None:
         assert len(tracker.victims()) == victims, offset_m
         assert confirmed == ([] if victims == 1 else [first + 1]), offset_m
         assert not [e for e in events if e.kind == EventKind.MERGED]
+
+
+def test_a_lone_hand_of_a_victim_seen_whole_supports_it_but_does_not_move_it() -> None:
+    """A body seen whole lies where its body fixes say; its hand, found alone on
+    other frames 0.6 m away with a few percent visible, keeps the victim in sight but
+    moves neither its position nor its urgency. A victim seen only as a hand is
+    placed and classed by its hand."""
+    tracker = VictimTracker(PARAMS)
+    whole = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    before = tracker.victim(whole)
+    for k in range(10, 20):
+        hand = dataclasses.replace(obs(0.6, 0.0, k, 0.09, visibility_pct=4.0), part_only=True)
+        tracker.update([hand], T0 + k, always)
+    after = tracker.victim(whole)
+    assert (after.north_m, after.east_m) == (before.north_m, before.east_m)
+    assert after.urgency is Urgency.LIGHT and after.last_seen_unix_s == T0 + 19
+    assert len(tracker.victims()) == 1
+    alone = VictimTracker(PARAMS)
+    for k in range(5):
+        hand = dataclasses.replace(obs(3.0, 1.0, k, 0.01, visibility_pct=4.0), part_only=True)
+        alone.update([hand], T0 + k, always)
+    [victim] = alone.victims()
+    assert victim.urgency is Urgency.CRITICAL and victim.north_m == pytest.approx(3.0)
 
 
 def test_weighted_median() -> None:
