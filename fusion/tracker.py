@@ -25,13 +25,13 @@ Per ``update`` (one processed camera frame, with or without detections):
 3. matched tracks are updated and gain ``hit_log_odds`` (a RESCUED or FALSE_ALARM
    track absorbs its observations: no support, no events; a lone part, a hand or a
    face, of a victim already seen as a body only supports it: where a hand lies is
-   not where its body lies, nor does it show how much of the body is buried); an unmatched
-   observation within ``new_track_exclusion_chi2`` of a live track is an outlier or
-   a duplicate detection of it and is dropped, as is one within ``merge_chi2`` of
-   another observation starting a track in the same frame (else one victim detected
-   twice per frame, or a 1-in-100 noise outlier, would spawn a ghost that steals
-   detections, confirms and later merges); the remaining unmatched observations
-   start tentative tracks;
+   not where its body lies, nor does it show how much of the body is buried); an
+   unmatched observation within ``new_track_exclusion_chi2`` of a live track is an
+   outlier or a duplicate detection of it and is dropped, as is one within
+   ``merge_chi2`` of another observation starting a track in the same frame (else
+   one victim detected twice per frame, or a 1-in-100 noise outlier, would spawn a
+   ghost that steals detections, confirms and later merges); the remaining
+   unmatched observations start tentative tracks;
 4. tentative tracks in view (``in_view(north, east)``: the pipeline's counts only
    points within ``miss_max_range_m``) but not detected gain ``miss_log_odds``;
    they are confirmed at ``confirm_log_odds`` and die below ``delete_log_odds`` or
@@ -217,8 +217,6 @@ class VictimTracker:
     ) -> None:
         """The Kalman update of every matched track, in one batch (see kalman_update);
         results go back into each track's filter."""
-        if not pairs:
-            return
         # A lone part of a victim seen whole (its hand, 0.5-0.8 m from where the body
         # lies) is support for it, not a fix of its position.
         pairs = [(i, j) for i, j in pairs if not _part_of_body(live[i], observations[j])]
