@@ -22,7 +22,8 @@ Fusion, per frame:
 1. Each person detection is a body. Its region is the landmark model's crop; its
    visible pixels are the landmark mask or the segmentation inside that region.
 2. A face or palm inside a body's region supports that body (a cue). One that
-   belongs to no body is a body of its own: a lone exposed part.
+   belongs to no body is a body of its own: a lone exposed part (a palm only when
+   the hand landmark model sees a hand in the crop around it).
 3. Cues are listed on the detection: person, landmarks, mask, face, hand.
 
 Visible area is measured in frame pixels; ``visibility.assess`` divides it by the
