@@ -192,11 +192,16 @@ def _mean_luma(image_bgr: np.ndarray) -> float:
     return float(grey.mean()) / 255.0
 
 
+def _upright_angle(low: np.ndarray, high: np.ndarray) -> float:
+    """The turn of a RotatedRect that puts ``high`` straight above ``low`` in its crop
+    (MediaPipe's rotation with a target angle of 90 degrees)."""
+    return math.pi / 2 - math.atan2(-(high[1] - low[1]), high[0] - low[0])
+
+
 def _rect_from_keypoints(kp: np.ndarray, scale: float = 1.25) -> RotatedRect:
     (x0, y0), (x1, y1) = kp[0], kp[1]
     size = 2.0 * math.hypot(x1 - x0, y1 - y0) * scale
-    angle = math.pi / 2 - math.atan2(-(y1 - y0), x1 - x0)
-    return RotatedRect(float(x0), float(y0), max(size, 8.0), angle)
+    return RotatedRect(float(x0), float(y0), max(size, 8.0), _upright_angle(kp[0], kp[1]))
 
 
 class PeopleDetector:
@@ -435,8 +440,7 @@ class PeopleDetector:
         knuckle (keypoint 2), 2.6 times the palm box, shifted half a box towards the
         fingers."""
         w, h = float(box[2] - box[0]), float(box[3] - box[1])
-        (x0, y0), (x2, y2) = kp[0], kp[2]
-        angle = math.pi / 2 - math.atan2(-(y2 - y0), x2 - x0)
+        angle = _upright_angle(kp[0], kp[2])
         cx = (box[0] + box[2]) / 2 + HAND_CROP_SHIFT * h * math.sin(angle)
         cy = (box[1] + box[3]) / 2 - HAND_CROP_SHIFT * h * math.cos(angle)
         rect = RotatedRect(float(cx), float(cy), max(HAND_CROP_SCALE * max(w, h), 8.0), angle)
