@@ -123,7 +123,11 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "t_filter_unix_s", "log_odds", "observations",
 #                "first_seen_unix_s", "last_seen_unix_s",
 #                "history": [[t_unix_s, visibility_pct, quality], ...],
-#                "urgency" (Urgency name), "visibility_pct", "merged_into": int | null}]}
+#                "urgency" (Urgency name), "visibility_pct", "merged_into": int | null,
+#                "body_seen": bool, "seen_with": [track_id, ...]}]}
+#
+# "body_seen" and "seen_with" were added to version 1 on 2026-11-27; a snapshot written
+# before reads as false and [] (what a restart gave until then).
 
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
 SNAPSHOT_VERSION = 1
@@ -149,6 +153,8 @@ class TrackRecord:
     urgency: Urgency
     visibility_pct: float
     merged_into: int | None
+    body_seen: bool = False  # seen as a body, not only as a lone hand or face
+    seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
 
 
 def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) -> dict[str, Any]:
@@ -173,6 +179,8 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "urgency": r.urgency.name,
                 "visibility_pct": r.visibility_pct,
                 "merged_into": r.merged_into,
+                "body_seen": r.body_seen,
+                "seen_with": list(r.seen_with),
             }
             for r in records
         ],
@@ -242,6 +250,14 @@ def _record(obj: Any, where: str) -> TrackRecord:
     if (merged_into is not None) != (state == TrackState.MERGED):
         raise FusionError(f"snapshot{where}: merged_into must be set exactly for MERGED tracks")
     x = _floats(_get(obj, "x", where), 2, f"{where}.x")
+    body_seen = obj.get("body_seen", False)
+    if not isinstance(body_seen, bool):
+        raise FusionError(f"snapshot{where}.body_seen: expected true or false, got {body_seen!r}")
+    seen_with = obj.get("seen_with", [])
+    if not isinstance(seen_with, list) or not all(
+        isinstance(i, int) and not isinstance(i, bool) and i >= 1 for i in seen_with
+    ):
+        raise FusionError(f"snapshot{where}.seen_with: expected a list of track ids")
     return TrackRecord(
         track_id=_int(obj, "track_id", where, 1),
         victim_id=victim_id,
@@ -259,6 +275,8 @@ def _record(obj: Any, where: str) -> TrackRecord:
         urgency=_enum(_get(obj, "urgency", where), Urgency, f"{where}.urgency"),
         visibility_pct=_float(_get(obj, "visibility_pct", where), f"{where}.visibility_pct"),
         merged_into=merged_into,
+        body_seen=body_seen,
+        seen_with=tuple(sorted(set(seen_with))),
     )
 
 

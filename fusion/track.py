@@ -32,9 +32,9 @@ class Track:
     merged_into: int | None = None
     matched: bool = field(default=False, repr=False)  # in the current update
     # Confirmed tracks detected in the same frame as this tentative one (so not the
-    # same body); not stored: a tentative track does not outlive a restart.
+    # same body).
     seen_with: set[int] = field(default_factory=set, repr=False)
-    # Seen as a body, not only as a lone part, since this instance started (not stored).
+    # Seen as a body, not only as a lone part (a hand, a face).
     body_seen: bool = field(default=False, repr=False)
 
     @property
@@ -95,6 +95,8 @@ def record_of(t: Track) -> TrackRecord:
         urgency=t.urgency,
         visibility_pct=t.visibility_pct,
         merged_into=t.merged_into,
+        body_seen=t.body_seen,
+        seen_with=tuple(sorted(t.seen_with)),
     )
 
 
@@ -114,4 +116,6 @@ def track_of(rec: TrackRecord, urgency_window: int) -> Track:
         visibility_pct=rec.visibility_pct,
         victim_id=rec.victim_id,
         merged_into=rec.merged_into,
+        seen_with=set(rec.seen_with),
+        body_seen=rec.body_seen,
     )

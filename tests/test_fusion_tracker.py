@@ -210,6 +210,31 @@ def test_a_lone_hand_of_a_victim_seen_whole_supports_it_but_does_not_move_it() -
     assert victim.urgency is Urgency.CRITICAL and victim.north_m == pytest.approx(3.0)
 
 
+def test_a_restart_remembers_which_victims_were_seen_whole_and_together() -> None:
+    """After a restart, a lone hand of a victim seen whole still only supports it, and
+    a tentative track seen in a frame with a victim 0.6 m away (two people side by
+    side) is still confirmed. A snapshot from before these were stored restores as
+    before: neither known."""
+    tracker = VictimTracker(PARAMS)
+    whole = confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    tight = 0.01
+    tracker.update([obs(0.0, 0.0, 10.0, tight), obs(0.0, 0.6, 10.0, tight)], T0 + 10, always)
+    snap = tracker.snapshot()
+    restored = VictimTracker.restore(PARAMS, snap)
+    assert restored.snapshot() == snap
+    before = restored.victim(whole)
+    for k in range(11, 16):
+        hand = dataclasses.replace(obs(0.6, 0.0, k, 0.09, visibility_pct=4.0), part_only=True)
+        restored.update([hand, obs(0.0, 0.6, k, tight)], T0 + k, always)
+    after = restored.victim(whole)
+    assert (after.north_m, after.east_m) == (before.north_m, before.east_m)
+    assert len(restored.victims()) == 2
+    for track in snap["tracks"]:
+        del track["body_seen"], track["seen_with"]
+    old = VictimTracker.restore(PARAMS, snap)
+    assert all(not t["body_seen"] and not t["seen_with"] for t in old.snapshot()["tracks"])
+
+
 def test_weighted_median() -> None:
     assert weighted_median([1.0, 2.0, 3.0, 4.0], [1.0, 1.0, 1.0, 1.0]) == 2.5
     assert weighted_median([5.0, 90.0, 6.0], [1.0, 1.0, 1.0]) == 6.0
@@ -324,6 +349,8 @@ def _snapshot() -> dict[str, Any]:
         (("tracks", 0, "state"), "ALIVE", r"tracks\[0\]\.state: expected one of"),
         (("tracks", 1, "P"), [[1.0, 0.0], [0.0, -1.0]], r"tracks\[1\]\.P: not a symmetric"),
         (("tracks", 1, "x"), [1.0, "n"], r"tracks\[1\]\.x\[1\]: expected a finite number"),
+        (("tracks", 0, "body_seen"), "yes", r"tracks\[0\]\.body_seen: expected true or false"),
+        (("tracks", 2, "seen_with"), [0], r"tracks\[2\]\.seen_with: expected a list of track"),
         (("tracks", 0, "history"), [], r"tracks\[0\]\.history"),
         (("tracks", 1, "track_id"), 1, r"duplicate track_id"),
         (("tracks", 2, "victim_id"), 3, r"victim_id 3 does not fit state TENTATIVE"),
