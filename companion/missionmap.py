@@ -114,10 +114,11 @@ def draw_mission_map(
         cv2.polylines(img, [pts], False, _ROUTE_BGR, 2, cv2.LINE_AA)
         cv2.circle(img, px(*route_ne_m[0]), 6, _ROUTE_BGR, -1)
     right_px = int(_MARGIN_PX + (e1 - e0) * scale)
+    labels: list[tuple[str, tuple[int, int]]] = []
     for t in truth:
         at = px(t.north_m, t.east_m)
         cv2.drawMarker(img, at, (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA)
-        _label(img, f"{t.label} {t.urgency.name}", at, right_px, below=True)
+        labels.append((f"{t.label} {t.urgency.name}", at))
     for v in victims:
         colour = URGENCY_BGR[v.urgency]
         (a, b), (_, d) = v.cov_ne_m2
@@ -132,8 +133,12 @@ def draw_mission_map(
         centre = px(v.north_m, v.east_m)
         cv2.ellipse(img, centre, axes, angle, 0, 360, colour, 2, cv2.LINE_AA)
         cv2.circle(img, centre, 7, colour, -1 if v.confirmed else 2, cv2.LINE_AA)
-        label = f"{v.label} {v.urgency.name} {v.visibility_pct:.0f}%"
-        _label(img, label, centre, right_px, below=False)
+        labels.append((f"{v.label} {v.urgency.name} {v.visibility_pct:.0f}%", centre))
+    # Labels last, over everything, each where it hides no marker and no other label.
+    markers = [at for _text, at in labels]
+    for text, (x, y), _at in place_labels(labels, markers, (0, 0, right_px, img.shape[0])):
+        cv2.putText(img, text, (x, y), _FONT, 0.5, (250, 250, 250), 4, cv2.LINE_AA)  # halo
+        cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
     _legend(img, right_px + 20, bool(truth), bool(debris_ne_m))
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
@@ -148,14 +153,60 @@ def draw_mission_map(
         raise OSError(f"cannot write {path}")
 
 
-def _label(img: np.ndarray, text: str, at: tuple[int, int], right_px: int, *, below: bool) -> None:
-    """A label beside a marker, kept inside the map (left of it near the right edge)."""
-    (tw, th), _ = cv2.getTextSize(text, _FONT, 0.5, 1)
-    x = at[0] + 10 if at[0] + 10 + tw <= right_px else at[0] - 10 - tw
-    y = at[1] + 8 + th if below else at[1] - 8
-    x = int(np.clip(x, 2, img.shape[1] - tw - 2))
-    y = int(np.clip(y, th + 2, img.shape[0] - 4))
-    cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
+Rect = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels
+
+_MARKER_HALF_PX = 9  # a marker's half size, kept clear of labels
+
+
+def place_labels(
+    labels: Sequence[tuple[str, tuple[int, int]]],
+    markers: Sequence[tuple[int, int]],
+    area: Rect,
+) -> list[tuple[str, tuple[int, int], Rect]]:
+    """Where to write each label (text, marker pixel): the text's origin and its box.
+
+    Each label goes to the first place beside its marker (right, left, above, below,
+    then farther out; shifted inside ``area``) that overlaps no marker and no label
+    placed before it; if there is none, the one that overlaps least."""
+    placed: list[Rect] = []
+    keep_clear = [
+        (x - _MARKER_HALF_PX, y - _MARKER_HALF_PX, x + _MARKER_HALF_PX, y + _MARKER_HALF_PX)
+        for x, y in markers
+    ]
+    out = []
+    for text, (mx, my) in labels:
+        (tw, th), base = cv2.getTextSize(text, _FONT, 0.5, 1)
+        bw, bh = tw + 4, th + 3 + base
+        best: tuple[int, Rect] | None = None
+        for ring in (0, 1, 2, 3):
+            gap = 12 + 16 * ring
+            corners = (  # the box's top left: right of, left of, above, below the marker
+                (mx + gap, my - bh // 2),
+                (mx - gap - bw, my - bh // 2),
+                (mx - bw // 2, my - gap - bh),
+                (mx - bw // 2, my + gap),
+            )
+            for x, y in corners:
+                x0 = min(max(x, area[0]), area[2] - bw)  # shifted inside the area
+                y0 = min(max(y, area[1]), area[3] - bh)
+                box = (x0, y0, x0 + bw, y0 + bh)
+                cost = sum(_overlap(box, r) for r in (*placed, *keep_clear))
+                if best is None or cost < best[0]:
+                    best = (cost, box)
+                if cost == 0:
+                    break
+            if best is not None and best[0] == 0:
+                break
+        assert best is not None
+        box = best[1]
+        placed.append(box)
+        out.append((text, (box[0] + 2, box[3] - base), box))
+    return out
+
+
+def _overlap(a: Rect, b: Rect) -> int:
+    """The pixels two boxes share."""
+    return max(0, min(a[2], b[2]) - max(a[0], b[0])) * max(0, min(a[3], b[3]) - max(a[1], b[1]))
 
 
 def _legend(img: np.ndarray, x: int, truth: bool, debris: bool) -> None:
