@@ -204,8 +204,23 @@ def _listening_port(hq: subprocess.Popen[bytes], timeout_s: float = 30.0) -> int
     return found[0]
 
 
-def _deliver(reports: list[ReplayReport], hq_address: tuple[str, int]) -> int:
-    """Send each report, in order, until rescue-hq acknowledges it; how many resends."""
+@dataclass(frozen=True)
+class _ReplayStatus:
+    """What the replayed companion would say of itself at the mission's end."""
+
+    uptime_s: float  # the mission's length
+    fps: float  # frames processed per second of mission (every frame, in a replay)
+    vision_ms: float  # wall time of the replay per frame
+    confirmed: int
+    origin: bool  # the vehicle had a global origin
+
+
+def _deliver(
+    reports: list[ReplayReport], hq_address: tuple[str, int], status: _ReplayStatus
+) -> int:
+    """Send each report, in order, until rescue-hq acknowledges it, then each robot's
+    RESCUE_STATUS at the mission's end (so the HQ's robot table is filled in, as a
+    live companion's would be); how many resends."""
     resends = 0
     robots: dict[int, SimRobot] = {}
     try:
@@ -224,6 +239,21 @@ def _deliver(reports: list[ReplayReport], hq_address: tuple[str, int]) -> int:
                     resends += 1
                     if attempt == _SEND_ATTEMPTS - 1:
                         raise DemoError(f"rescue-hq did not acknowledge report {seq}") from None
+        for robot in robots.values():
+            m = robot.m
+            flags = (
+                m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
+                | m.RESCUE_STATUS_FLAGS_CAMERA
+                | m.RESCUE_STATUS_FLAGS_HQ_LINK
+                | m.RESCUE_STATUS_FLAGS_CLOCK_SYNCED
+                | (m.RESCUE_STATUS_FLAGS_GLOBAL_ORIGIN if status.origin else 0)
+            )
+            robot.send(
+                m.MAVLink_rescue_status_message(
+                    int(status.uptime_s), status.fps, 0.0, status.vision_ms, flags,
+                    min(status.confirmed, 0xFFFF), 0, 0,
+                )
+            )  # fmt: skip
     finally:
         for robot in robots.values():
             robot.close()
@@ -266,8 +296,16 @@ def _run_recorded(
         "pipeline (the Pi's default person detector) processes every one",
         flush=True,
     )
+    started_s = time.monotonic()
     result = replay(
         load_config(mission / "camera.toml"), mission / "mission.tlog", mission / "frames"
+    )
+    status = _ReplayStatus(
+        uptime_s=rec.duration_s,
+        fps=result.frames / rec.duration_s if rec.duration_s > 0 else 0.0,
+        vision_ms=1000.0 * (time.monotonic() - started_s) / max(1, result.frames),
+        confirmed=len(result.victims),
+        origin=result.origin is not None,
     )
     print(f"demo: {len(result.reports)} reports decided; sending them to rescue-hq", flush=True)
     with (out_dir / "hq.log").open("wb") as hq_log:
@@ -276,7 +314,7 @@ def _run_recorded(
             "--sbs", "off",
         )  # fmt: skip
     try:
-        resends = _deliver(result.reports, ("127.0.0.1", _listening_port(hq)))
+        resends = _deliver(result.reports, ("127.0.0.1", _listening_port(hq)), status)
         if resends:
             print(f"demo: {resends} report(s) resent before rescue-hq acknowledged them")
     finally:

@@ -49,6 +49,12 @@ def test_demo_reports_to_the_hq_maps_and_starts_fresh_unless_resumed(tmp_path: P
     assert csv_lines == 1 + len(reported)  # a header, then one row per victim
     with Registry(out / "hq.sqlite") as reg:
         assert [v.hq_id for v in hq_victims(reg)] == reported
+    # The HQ's robot table shows the replayed companion's status at the mission's end:
+    # every frame of the 5 frames/s camera processed, its confirmed victims.
+    out_lines = first.stdout.splitlines()
+    head = next(i for i, line in enumerate(out_lines) if line.split()[:2] == ["ROBOT", "HEARD"])
+    robot = out_lines[head + 1].split()
+    assert robot[2:4] == ["5.0", str(len(reported))] and "VEH" in robot and "CAM" in robot
     # --resume keeps what the HQ holds (a 2 s mission finds nobody new) ...
     resumed = _demo(out, "--duration-s", "2", "--resume")
     assert resumed.returncode == 0, resumed.stderr[-2000:]
