@@ -36,7 +36,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from companion.config import load_config
 from companion.missionmap import MapTruth, MapVictim, draw_mission_map
@@ -215,18 +215,36 @@ class _ReplayStatus:
     origin: bool  # the vehicle had a global origin
 
 
+def _status_msg(m: Any, status: _ReplayStatus) -> Any:
+    flags = (
+        m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
+        | m.RESCUE_STATUS_FLAGS_CAMERA
+        | m.RESCUE_STATUS_FLAGS_HQ_LINK
+        | m.RESCUE_STATUS_FLAGS_CLOCK_SYNCED
+        | (m.RESCUE_STATUS_FLAGS_GLOBAL_ORIGIN if status.origin else 0)
+    )
+    return m.MAVLink_rescue_status_message(
+        int(status.uptime_s), status.fps, 0.0, status.vision_ms, flags,
+        min(status.confirmed, 0xFFFF), 0, 0,
+    )  # fmt: skip
+
+
 def _deliver(
     reports: list[ReplayReport], hq_address: tuple[str, int], status: _ReplayStatus
 ) -> int:
-    """Send each report, in order, until rescue-hq acknowledges it, then each robot's
-    RESCUE_STATUS at the mission's end (so the HQ's robot table is filled in, as a
-    live companion's would be); how many resends."""
+    """Send each report, in order, until rescue-hq acknowledges it; how many resends.
+    Each robot first sends its RESCUE_STATUS at the mission's end, so the HQ's robot
+    table is filled in as a live companion's would be (the HQ handles a robot's
+    messages in order: the first report's acknowledgement means the status is in)."""
     resends = 0
     robots: dict[int, SimRobot] = {}
     try:
         for seq, r in enumerate(reports, start=1):
             sysid = r.report.robot_sysid
-            robot = robots.get(sysid) or robots.setdefault(sysid, SimRobot(sysid, hq_address))
+            robot = robots.get(sysid)
+            if robot is None:
+                robot = robots[sysid] = SimRobot(sysid, hq_address)
+                robot.send(_status_msg(robot.m, status))
             msg = convert.victim_report_to_msg(
                 r.report, seq, r.flags, r.t_unix_s, r.merged_into, robot.m
             )
@@ -239,21 +257,6 @@ def _deliver(
                     resends += 1
                     if attempt == _SEND_ATTEMPTS - 1:
                         raise DemoError(f"rescue-hq did not acknowledge report {seq}") from None
-        for robot in robots.values():
-            m = robot.m
-            flags = (
-                m.RESCUE_STATUS_FLAGS_VEHICLE_LINK
-                | m.RESCUE_STATUS_FLAGS_CAMERA
-                | m.RESCUE_STATUS_FLAGS_HQ_LINK
-                | m.RESCUE_STATUS_FLAGS_CLOCK_SYNCED
-                | (m.RESCUE_STATUS_FLAGS_GLOBAL_ORIGIN if status.origin else 0)
-            )
-            robot.send(
-                m.MAVLink_rescue_status_message(
-                    int(status.uptime_s), status.fps, 0.0, status.vision_ms, flags,
-                    min(status.confirmed, 0xFFFF), 0, 0,
-                )
-            )  # fmt: skip
     finally:
         for robot in robots.values():
             robot.close()
