@@ -21,10 +21,12 @@ Re-measure it deliberately, after a change that is meant to move the figures, wi
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import dataclasses
 import datetime as dt
 import json
 import logging
+import multiprocessing
 import os
 import platform
 import subprocess
@@ -211,16 +213,29 @@ def measure_one(scenario: Scenario, work_dir: Path) -> tuple[dict[str, Any], Sco
     return out, scored
 
 
+def _measure_in_tmp(scenario: Scenario) -> tuple[dict[str, Any], ScoreResult]:
+    with tempfile.TemporaryDirectory(prefix=f"acc-{scenario.key}-") as tmp:
+        log.info("accuracy: %s (%s)", scenario.key, scenario.world)
+        return measure_one(scenario, Path(tmp))
+
+
 def measure(scenarios: Sequence[Scenario]) -> dict[str, Any]:
-    """Figures of each scenario, their totals and the settings they were measured with."""
-    per: dict[str, Any] = {}
-    scores: list[ScoreResult] = []
+    """Figures of each scenario, their totals and the settings they were measured with.
+
+    The scenarios run in parallel processes, one per CPU this process may use (each
+    replay is deterministic and single-threaded: the figures are those of a run one
+    after another; ``python -m bench`` pins one CPU, so there they do run so)."""
     start = time.perf_counter()
-    for scenario in scenarios:
-        with tempfile.TemporaryDirectory(prefix=f"acc-{scenario.key}-") as tmp:
-            log.info("accuracy: %s (%s)", scenario.key, scenario.world)
-            per[scenario.key], scored = measure_one(scenario, Path(tmp))
-        scores.append(scored)
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    jobs = min(len(scenarios), cpus or 1)
+    if jobs > 1:
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
+            results = list(pool.map(_measure_in_tmp, scenarios))
+    else:
+        results = [_measure_in_tmp(s) for s in scenarios]
+    per = {s.key: figs for s, (figs, _scored) in zip(scenarios, results, strict=True)}
+    scores = [scored for _figs, scored in results]
     return {
         "settings": {s.key: s.settings() for s in scenarios},
         "scenarios": per,
