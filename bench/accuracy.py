@@ -2,8 +2,8 @@
 
 Each scenario (the seven presets of ``scenarios`` and the generated mixed worlds of
 seeds 1 and 2) is recorded with ``scenarios.record.record`` (fixed world seed and
-start time, the whole lawnmower route, 5 frames/s at 640x480), replayed in-process
-through ``companion.replay.replay`` with the recorded camera.toml as the whole
+start time, the whole lawnmower route, 5 frames/s at 640x480), replayed (in one
+worker process per CPU, each scenario whole) through ``companion.replay.replay`` with the recorded camera.toml as the whole
 configuration (every other key at its default), and scored with
 ``scenarios.score.score`` (Hungarian matching, 1 m gate). Per scenario: recall,
 false victims, duplicate IDs, localisation error median/p95/max, urgency accuracy,
