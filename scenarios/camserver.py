@@ -114,6 +114,10 @@ class CameraServer:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @property
+    def closed(self) -> bool:
+        return self._stop.is_set()
+
     def close(self) -> None:
         """Stop rendering, disconnect clients; safe to call twice."""
         if not self._stop.is_set():
@@ -128,6 +132,12 @@ class CameraServer:
         self._threads.clear()
         with contextlib.suppress(OSError):
             self._listener.close()
+
+    @property
+    def last_sent_mono_s(self) -> float:
+        """When a client last got a frame (monotonic clock; start() before the first)."""
+        with self._lock:
+            return self._last_sent_mono_s
 
     def client_stats(self) -> list[tuple[int, int]]:
         """(sent, dropped) per connected client."""

@@ -40,11 +40,13 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from scenarios.camserver import CameraServer
 from scenarios.chaoscheck import (
     ChaosResult,
     check,
@@ -71,6 +73,38 @@ _LEAD_M = 2.5  # a pass starts this far short of its victim and ends as far beyo
 
 _SPACING_M = 8.0  # between the people, east: out of the camera's view during another's patrol
 _PLACES_NE_M = ((3.0, 3.0), (5.0, 3.0 + _SPACING_M), (3.5, 3.0 + 2 * _SPACING_M))
+
+
+CAMERA_SILENCE_DUMP_S = 30.0  # no frame to any client this long: dump the threads once
+
+
+def watch_camera(
+    camera: CameraServer,
+    path: Path,
+    silence_s: float,
+    stop: threading.Event,
+    say: Callable[[str], None],
+) -> None:
+    """Once the camera server has sent no frame for ``silence_s`` (the chaos check's
+    limit), write every thread's stack of this process to ``path``: a silent camera
+    (seen once, 417 s from a companion's SIGKILL on, with no traceback) shows there
+    where its threads wait. Returns after one dump, when ``stop`` is set, or when the
+    server is closed."""
+    while not stop.wait(1.0) and not camera.closed:
+        if time.monotonic() - camera.last_sent_mono_s < silence_s:
+            continue
+        frames = sys._current_frames()
+        lines = [
+            f"camera silent for {silence_s:g} s; clients (sent, dropped): "
+            f"{camera.client_stats()}; frames rendered: {camera.frames_rendered}\n"
+        ]
+        for t in threading.enumerate():
+            frame = frames.get(t.ident or -1)
+            lines.append(f"\n--- thread {t.name}\n")
+            lines.extend(traceback.format_stack(frame) if frame is not None else ["(no frame)\n"])
+        path.write_text("".join(lines), encoding="utf-8")
+        say(f"chaos: the camera sent no frame for {silence_s:g} s; thread stacks in {path}")
+        return
 
 
 def chaos_world() -> World:
@@ -277,6 +311,13 @@ def run_chaos(
         hq.start()
         companion.start()
         filler: Path | None = None
+        watch = threading.Thread(
+            target=watch_camera,
+            args=(sim.camera, out / "camera-silence-threads.txt", CAMERA_SILENCE_DUMP_S, stop, say),
+            name="chaos-camera-watch",
+            daemon=True,
+        )
+        watch.start()
         try:
             for fault in plan:
                 if stop.wait(max(0.0, start + fault.at_s - time.monotonic())):
@@ -287,6 +328,7 @@ def run_chaos(
             if filler is not None:
                 filler.unlink(missing_ok=True)
             sim.camera.close()  # no new news: what is known must now reach the HQ
+            watch.join(timeout=2.0)
             result.longest_silence_s = longest_silence_s(
                 sim.camera.silences, [(r.started_mono_s, r.ended_mono_s) for r in companion.runs]
             )

@@ -9,12 +9,16 @@ import math
 import signal
 import socket
 import sys
+import threading
 import time
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
-from scenarios.chaos import SPEED_M_S, chaos_world, patrol_route, plan_faults
+from scenarios.camserver import CameraServer
+from scenarios.chaos import SPEED_M_S, chaos_world, patrol_route, plan_faults, watch_camera
 from scenarios.chaoscheck import CAMERA_GRACE_S, longest_silence_s
 from scenarios.radio import Radio
 from scenarios.supervise import Supervised
@@ -141,3 +145,35 @@ def test_camera_silence_counts_only_while_the_companion_is_settled() -> None:
     assert longest_silence_s([(100.0, 105.0 + g)], runs) == 0.0  # down, then restarting
     assert longest_silence_s([(g + 10.0, g + 50.0)], runs) == 40.0
     assert longest_silence_s([(90.0, 400.0)], runs) == 400.0 - (105.0 + g)  # across a kill
+
+
+def test_a_silent_camera_gets_its_thread_stacks_written_once(tmp_path: Path) -> None:
+    """A camera server whose renderer hangs sends nothing; the chaos watcher writes
+    where every thread waits (the renderer's own function among them) and says so."""
+    release = threading.Event()
+
+    class _Result:
+        def __init__(self) -> None:
+            self.image = np.zeros((48, 64, 3), np.uint8)
+            self.visible_px: dict[int, int] = {}
+
+    class _HangingRenderer:
+        def render(self, pose: object) -> _Result:
+            release.wait(30.0)  # the stuck render the watcher must show
+            return _Result()
+
+    said: list[str] = []
+    path = tmp_path / "threads.txt"
+    renderer: Any = _HangingRenderer()
+    no_pose: Any = None  # the hanging renderer never looks at it
+    camera = CameraServer(renderer, lambda: (no_pose, time.time()), fps=10.0)
+    camera.start()
+    try:
+        watch_camera(camera, path, 0.5, threading.Event(), said.append)
+    finally:
+        release.set()
+        camera.close()
+    text = path.read_text()
+    assert "--- thread cam-render" in text and "release.wait(30.0)" in text
+    assert "--- thread cam-accept" in text
+    assert said == [f"chaos: the camera sent no frame for 0.5 s; thread stacks in {path}"]
