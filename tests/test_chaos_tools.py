@@ -8,6 +8,7 @@ import itertools
 import math
 import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -177,3 +178,11 @@ def test_a_silent_camera_gets_its_thread_stacks_written_once(tmp_path: Path) -> 
     assert "--- thread cam-render" in text and "release.wait(30.0)" in text
     assert "--- thread cam-accept" in text
     assert said == [f"chaos: the camera sent no frame for 0.5 s; thread stacks in {path}"]
+
+
+def test_the_simulator_runs_blas_on_one_thread() -> None:
+    """Imported before numpy (as rescue-sim and the benches do), scenarios keeps
+    OpenBLAS from starting worker threads, which hung the chaos camera on a fork."""
+    code = "import scenarios, numpy, os; print(len(os.listdir('/proc/self/task')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "1"
