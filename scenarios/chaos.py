@@ -87,9 +87,9 @@ def watch_camera(
 ) -> None:
     """Once the camera server has sent no frame for ``silence_s`` (the chaos check's
     limit), write every thread's stack of this process to ``path``: a silent camera
-    (seen once, 417 s from a companion's SIGKILL on, with no traceback) shows there
-    where its threads wait. Returns after one dump, when ``stop`` is set, or when the
-    server is closed."""
+    shows there where its threads wait (it found the BLAS hang scenarios/__init__.py
+    tells of, which had left the camera silent with no traceback). Returns after one
+    dump, when ``stop`` is set, or when the server is closed."""
     while not stop.wait(1.0) and not camera.closed:
         if time.monotonic() - camera.last_sent_mono_s < silence_s:
             continue
