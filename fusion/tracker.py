@@ -374,6 +374,7 @@ class VictimTracker:
         merged = sorted([*older.history, *younger.history])
         older.history = deque(merged, maxlen=self._params.urgency_window)
         older.log_odds = max(older.log_odds, younger.log_odds)
+        older.body_seen = older.body_seen or younger.body_seen
         younger.state = TrackState.MERGED
         younger.merged_into = older.victim_id
         log.info("victim %d merged into %d", younger.victim_id, older.victim_id)

@@ -210,6 +210,23 @@ def test_a_lone_hand_of_a_victim_seen_whole_supports_it_but_does_not_move_it() -
     assert victim.urgency is Urgency.CRITICAL and victim.north_m == pytest.approx(3.0)
 
 
+def test_a_merged_victim_keeps_having_been_seen_whole() -> None:
+    """Two IDs of one victim merge: if either was seen as a body, the survivor was
+    (its lone hand then only supports it)."""
+    tracker = VictimTracker(TrackerParams(same_victim_m=0.0))
+    confirmed_victim(tracker, 0.0, 0.0, 0.0)
+    confirmed_victim(tracker, 5.0, 0.0, 10.0)
+    snap = tracker.snapshot()
+    older, younger = (t for t in snap["tracks"] if t["victim_id"])
+    older["body_seen"], younger["body_seen"] = False, True
+    younger["x"] = [0.01, 0.0]  # the same victim: within merge_chi2 of the older
+    restored = VictimTracker.restore(PARAMS, snap)
+    events = restored.update([], T0 + 30, never)
+    assert [e.kind for e in events] == [EventKind.MERGED]
+    [survivor] = (t for t in restored.snapshot()["tracks"] if t["state"] != "MERGED")
+    assert survivor["body_seen"] is True
+
+
 def test_a_restart_remembers_which_victims_were_seen_whole_and_together() -> None:
     """After a restart, a lone hand of a victim seen whole still only supports it, and
     a tentative track seen in a frame with a victim 0.6 m away (two people side by
