@@ -141,8 +141,16 @@ class Detection:
     # The body's axis (NED yaw, feet to head) where the detector can tell it; the
     # floor's size prior then uses that heading instead of the mean over headings.
     body_heading_rad: float | None = None
+    # The most of the body the detector saw, 0..1, from evidence other than its mask
+    # (the person models' joint heatmaps: a mask fills in a covered body). It caps
+    # the visible share the mask gives; None: the mask alone.
+    seen_share_max: float | None = None
 
     def __post_init__(self) -> None:
+        if self.seen_share_max is not None and not 0.0 <= self.seen_share_max <= 1.0:
+            raise ValueError(
+                f"Detection.seen_share_max must be in [0, 1], got {self.seen_share_max}"
+            )
         if self.body_heading_rad is not None and not math.isfinite(self.body_heading_rad):
             raise ValueError(
                 f"Detection.body_heading_rad must be finite, got {self.body_heading_rad}"

@@ -7,6 +7,7 @@ real frames from ../shared/data (tests that need them skip, naming the path).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -17,10 +18,18 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.real_images import hits_box
+from bench.burial import bury
+from bench.real_images import hits_box, match
 from companion.config import DetectorConfig
 from companion.vision import FrameGeometry, assess, make_detector, models, ssd
-from companion.vision.people import FACE_SPEC, PALM_SPEC, POSE_SPEC, PeopleDetector, PeopleParams
+from companion.vision.people import (
+    FACE_SPEC,
+    PALM_SPEC,
+    POSE_SPEC,
+    PeopleDetector,
+    PeopleParams,
+    _Body,
+)
 from fusion.camera import CameraModel
 from fusion.params import GeolocationParams
 from fusion.types import Detection, PoseSample, Urgency
@@ -151,6 +160,37 @@ def test_a_fully_visible_person_is_light(shared_data: Path, detector: PeopleDete
     assert {"person", "landmarks", "mask"} <= set(det.cues)
 
 
+@pytest.mark.parametrize(
+    ("visible_pct", "right", "share"), [(100, Urgency.LIGHT, 0.9), (20, Urgency.MEDIUM, 0.4)]
+)
+def test_people_under_real_debris_read_as_partly_visible(
+    shared_data: Path, visible_pct: int, right: Urgency, share: float
+) -> None:
+    """bench/burial.py's levels: real frames, each person's box covered by real brick
+    and gravel texture until ``visible_pct`` of it shows. The landmark mask fills in
+    the covered body: by the mask alone 1 of the 16 people found at 20 % read MEDIUM
+    (2026-11-27); by the share of joints its heatmaps see, 8. Uncovered people stay
+    LIGHT (23 of 24)."""
+    root, gt = _falls(shared_data)
+    names = ("skimage_brick_gray.png", "skimage_gravel_gray.png")
+    textures = [cv2.imread(str(shared_data / "images" / "negatives" / n)) for n in names]
+    single = make_detector(DetectorConfig(backend="people", enhance=False), single_images=True)
+    judged = ok = 0
+    for n, (rel, truth) in enumerate(sorted(gt.items())):
+        image = cv2.imread(str(root / rel))
+        boxes = truth["people"]  # type: ignore[index]
+        if visible_pct < 100:
+            image = bury(image, boxes, visible_pct, textures, seed=1000 * visible_pct + n)
+        found_by, _false = match(single.detect(image, None, 0.0), boxes)
+        for d in found_by:
+            a = None if d is None else assess(d, None)
+            if a is not None:
+                judged += 1
+                ok += a.urgency is right
+    assert judged >= 14
+    assert ok >= share * judged
+
+
 def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
     """Without the real data: images this test makes (flat, noise, a dark frame)."""
     rng = np.random.default_rng(3)
@@ -248,6 +288,36 @@ def test_visibility_without_geometry_uses_the_bodys_own_extent() -> None:
     assert a is not None and a.visibility_pct == pytest.approx(3.0)
     assert a.urgency is Urgency.CRITICAL
     assert assess(Detection(0.0, 1.0, 1.0, (0, 0, 2, 2), 3.0, 0.9), None) is None
+
+
+def test_the_seen_share_caps_what_the_mask_says() -> None:
+    """A mask as large as a whole body, on a body whose heatmaps see a quarter of its
+    joints, is MEDIUM; a mask showing 3 % stays CRITICAL whatever the heatmaps see."""
+    whole = Detection(0.0, 10.0, 10.0, (0, 0, 20, 20), 1000.0, 0.9, expected_area_px=1000.0)
+    a = assess(whole, None)
+    assert a is not None and a.urgency is Urgency.LIGHT
+    capped = dataclasses.replace(whole, seen_share_max=0.25)
+    a = assess(capped, None)
+    assert a is not None and a.visibility_pct == pytest.approx(25.0)
+    assert a.urgency is Urgency.MEDIUM
+    small = dataclasses.replace(capped, visible_area_px=30.0, seen_share_max=1.0)
+    a = assess(small, None)
+    assert a is not None and a.urgency is Urgency.CRITICAL
+
+
+def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> None:
+    """A body whose every joint heatmap is weak (a skeleton fitted badly, or a body
+    mostly covered) is capped at ``seen_share_floor``: MEDIUM, not CRITICAL."""
+    mask = np.zeros((480, 640), bool)
+    mask[200:260, 100:400] = True
+    body = _Body(
+        0.9, {"person", "landmarks", "mask"}, mask.astype(np.uint8), mask, None,
+        np.array([250.0, 230.0]), (100.0, 200.0, 400.0, 260.0), seen_share=0.0,
+    )  # fmt: skip
+    det = detector._detection(body, None, 0.0, 640, 480)
+    assert det is not None and det.seen_share_max == PeopleParams().seen_share_floor
+    a = assess(det, None)
+    assert a is not None and a.urgency is Urgency.MEDIUM
 
 
 def test_a_lone_face_is_critical_against_a_whole_body(detector: PeopleDetector) -> None:

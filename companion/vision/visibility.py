@@ -5,6 +5,10 @@ at that floor point (FrameGeometry.expected_body_area_px), clamped to [0, 100].
 Urgency follows fusion.types.Urgency.from_visibility: over 50 % LIGHT, 10-50 %
 MEDIUM, under 10 % CRITICAL. An exposed hand (~0.015 m^2 of a ~0.57 m^2 body) is
 ~3 %: CRITICAL; a half-buried body MEDIUM; a fully visible one LIGHT.
+
+A detection that says how much of the body its detector saw by other evidence
+(``Detection.seen_share_max``: the person models' joint heatmaps, where the mask
+fills in a covered body) is capped at that share.
 """
 
 from __future__ import annotations
@@ -52,4 +56,6 @@ def assess(detection: Detection, geometry: FrameGeometry | None) -> Assessment |
     if expected is None or expected <= 0.0:
         return None
     pct = visibility_pct(detection.visible_area_px, expected)
+    if detection.seen_share_max is not None:
+        pct = min(pct, 100.0 * detection.seen_share_max)
     return Assessment(pct, Urgency.from_visibility(pct), expected)
