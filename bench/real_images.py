@@ -139,14 +139,18 @@ def count_photos(detector: Detector) -> dict[str, Any]:
     return {"people_rgb_found": f"{found}/{want}", "negatives_false": false_neg}
 
 
+# VmHWM, not getrusage's ru_maxrss: Linux keeps ru_maxrss across exec, so a child
+# forked from this (large) benchmark process reported this process's resident set
+# (377-418 MB until 2026-11-27, against 175 MB of its own).
 _RSS_SCRIPT = """
-import resource, sys, cv2
+import re, sys, cv2
 from companion.config import Config
 from companion.vision import make_detector
 cv2.setNumThreads(1)
 det = make_detector(Config().detector)
 det.detect(cv2.imread(sys.argv[1]), None, 0.0)
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+status = open("/proc/self/status").read()
+print(int(re.search(r"VmHWM:\\s+(\\d+) kB", status).group(1)) / 1024.0)
 """
 
 
