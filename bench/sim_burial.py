@@ -15,6 +15,14 @@ boundary), 20 % MEDIUM, 5 % CRITICAL.
 
 Compare with the real burial benchmark (section burial): if the simulator were
 much easier than real images it would hide the detector's limits.
+
+Since 2026-11-27 a body's visible share is capped at the share of its main joints
+whose heatmaps see them (never below a quarter). The simulator's whole bodies give
+the landmark model's heatmaps weak peaks on most joints (logits -0.5 to -1.2, as
+the covered joints of real people do; uncovered real joints peak at a median
++0.17), so about a third of the uncovered views read MEDIUM here (urgency right at
+100 %: 0.909 before the cap), while those at 20 % read right more often (0.27
+before). To the person models the simulated bodies are still not quite people.
 """
 
 from __future__ import annotations
