@@ -161,7 +161,7 @@ def test_a_fully_visible_person_is_light(shared_data: Path, detector: PeopleDete
 
 
 @pytest.mark.parametrize(
-    ("visible_pct", "right", "share"), [(100, Urgency.LIGHT, 0.9), (20, Urgency.MEDIUM, 0.4)]
+    ("visible_pct", "right", "share"), [(100, Urgency.LIGHT, 0.8), (20, Urgency.MEDIUM, 0.8)]
 )
 def test_people_under_real_debris_read_as_partly_visible(
     shared_data: Path, visible_pct: int, right: Urgency, share: float
@@ -169,8 +169,8 @@ def test_people_under_real_debris_read_as_partly_visible(
     """bench/burial.py's levels: real frames, each person's box covered by real brick
     and gravel texture until ``visible_pct`` of it shows. The landmark mask fills in
     the covered body: by the mask alone 1 of the 16 people found at 20 % read MEDIUM
-    (2026-11-27); by the share of joints its heatmaps see, 8. Uncovered people stay
-    LIGHT (23 of 24)."""
+    (2026-11-27); capped by the share of joints its heatmaps see, 14. Of the 24
+    uncovered people 20 stay LIGHT (24 by the mask alone)."""
     root, gt = _falls(shared_data)
     names = ("skimage_brick_gray.png", "skimage_gravel_gray.png")
     textures = [cv2.imread(str(shared_data / "images" / "negatives" / n)) for n in names]

@@ -364,19 +364,23 @@ class PeopleDetector:
         region = rect.paste(np.ones((LANDMARK_PX, LANDMARK_PX), np.uint8), hw)
         cues = {"person"}
         points = seen = share = None
+        raw = out[0].reshape(-1, 5)[:N_BODY_POINTS]
+        joints = rect.to_image(raw[:, :2], LANDMARK_PX)
         if flag >= p.landmark_min_flag:
             cues.add("landmarks")
-            raw = out[0].reshape(-1, 5)[:N_BODY_POINTS]
-            points = rect.to_image(raw[:, :2], LANDMARK_PX)
+            points = joints
             seen = 1.0 / (1.0 + np.exp(-np.clip(raw[:, 3], -30, 30)))
             lm_logit = out[2][..., 0]
             lm_prob = rect.paste(1.0 / (1.0 + np.exp(-np.clip(lm_logit, -30, 30))), hw)
             mask = lm_prob > p.mask_threshold
-            if p.seen_min_logit is not None and judge_seen:
-                evidence = seenparts.joint_evidence(out[3], N_BODY_POINTS)
-                share = seenparts.seen_share(points, evidence, (hw[1], hw[0]), p.seen_min_logit)
         else:
             mask = (seg() > p.mask_threshold) & (region > 0)
+        if p.seen_min_logit is not None and judge_seen:
+            # Also where the landmark model does not confirm a person in the crop: its
+            # joints are then a guess, but its weak heatmaps still say it sees little
+            # of a body there, and the segmentation's mask spreads over debris.
+            evidence = seenparts.joint_evidence(out[3], N_BODY_POINTS)
+            share = seenparts.seen_share(joints, evidence, (hw[1], hw[0]), p.seen_min_logit)
         if mask.any():
             cues.add("mask")
         x0, y0, x1, y1 = (float(b) for b in box)
