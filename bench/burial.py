@@ -22,9 +22,9 @@ the mask alone a buried body read as mostly visible (urgency right at 20 %: 0.06
 until 2026-11-27). A body's visible share is now capped at the share of its main
 joints whose heatmaps see them (companion/vision/seenparts.py), never below a
 quarter: the heatmaps alone make a body MEDIUM, not CRITICAL, so the 5 % level is
-judged right only where a small mask or a lone part shows. People found without
-landmarks (7 of the 16 found at 20 %, 3 of 24 uncovered) are measured by the
-whole-frame segmentation, which spreads over the debris: they still read LIGHT.
+judged right only where a small mask or a lone part shows. The cap also holds a
+body the landmark model does not confirm (7 of the 16 found at 20 %, 3 of the 24
+uncovered): its mask is the whole-frame segmentation, which spreads over debris.
 Live, the camera model gives the area a whole lying adult covers at the floor
 point, which this benchmark cannot exercise on photos without a pose. The 5 %
 recall is what is honest: no model measured here finds a body that small.

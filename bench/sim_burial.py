@@ -20,8 +20,8 @@ Since 2026-11-27 a body's visible share is capped at the share of its main joint
 whose heatmaps see them (never below a quarter). The simulator's whole bodies give
 the landmark model's heatmaps weak peaks on most joints (logits -0.5 to -1.2, as
 the covered joints of real people do; uncovered real joints peak at a median
-+0.17), so about a third of the uncovered views read MEDIUM here (urgency right at
-100 %: 0.909 before the cap), while those at 20 % read right more often (0.27
++0.17), so more than a third of the uncovered views read MEDIUM here (urgency right
+at 100 %: 0.909 before the cap), while those at 20 % read right more often (0.27
 before). To the person models the simulated bodies are still not quite people.
 """
 
