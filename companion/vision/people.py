@@ -30,9 +30,10 @@ Visible area is measured in frame pixels; ``visibility.assess`` divides it by th
 area a whole lying adult would cover at the body's floor point (the camera
 geometry), or, without a geometry (a photo), by the body's own extent from its
 landmarks (``Detection.expected_area_px``). The landmark mask fills in a covered
-body; a body with landmarks is therefore capped at the share of its main joints
+body; a person detector's body is therefore capped at the share of its main joints
 whose heatmaps see them (``seenparts.py``; ``Detection.seen_share_max``), at least
-a quarter: the heatmaps alone make a body MEDIUM, never CRITICAL.
+a quarter: the heatmaps alone make a body MEDIUM, never CRITICAL. Not on a dark
+frame, where they are weak on uncovered people too.
 
 Where the body lies: ``floorpoint.py``.
 """
