@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.burial import bury
+from bench.burial import TEXTURES, bury
 from bench.real_images import hits_box, match
 from companion.config import DetectorConfig
 from companion.vision import FrameGeometry, assess, make_detector, models, ssd
@@ -161,10 +161,11 @@ def test_a_fully_visible_person_is_light(shared_data: Path, detector: PeopleDete
 
 
 @pytest.mark.parametrize(
-    ("visible_pct", "right", "share"), [(100, Urgency.LIGHT, 0.8), (20, Urgency.MEDIUM, 0.8)]
+    ("visible_pct", "right", "min_right_share"),
+    [(100, Urgency.LIGHT, 0.8), (20, Urgency.MEDIUM, 0.8)],
 )
 def test_people_under_real_debris_read_as_partly_visible(
-    shared_data: Path, visible_pct: int, right: Urgency, share: float
+    shared_data: Path, visible_pct: int, right: Urgency, min_right_share: float
 ) -> None:
     """bench/burial.py's levels: real frames, each person's box covered by real brick
     and gravel texture until ``visible_pct`` of it shows. The landmark mask fills in
@@ -172,8 +173,7 @@ def test_people_under_real_debris_read_as_partly_visible(
     (2026-11-27); capped by the share of joints its heatmaps see, 14. Of the 24
     uncovered people 20 stay LIGHT (24 by the mask alone)."""
     root, gt = _falls(shared_data)
-    names = ("skimage_brick_gray.png", "skimage_gravel_gray.png")
-    textures = [cv2.imread(str(shared_data / "images" / "negatives" / n)) for n in names]
+    textures = [cv2.imread(str(shared_data / "images" / "negatives" / n)) for n in TEXTURES]
     single = make_detector(DetectorConfig(backend="people", enhance=False), single_images=True)
     judged = ok = 0
     for n, (rel, truth) in enumerate(sorted(gt.items())):
@@ -188,7 +188,7 @@ def test_people_under_real_debris_read_as_partly_visible(
                 judged += 1
                 ok += a.urgency is right
     assert judged >= 14
-    assert ok >= share * judged
+    assert ok >= min_right_share * judged
 
 
 def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
