@@ -375,6 +375,9 @@ class VictimTracker:
         older.history = deque(merged, maxlen=self._params.urgency_window)
         older.log_odds = max(older.log_odds, younger.log_odds)
         older.body_seen = older.body_seen or younger.body_seen
+        for t in self._tracks.values():  # seen beside the younger ID: beside the victim
+            if younger.track_id in t.seen_with:
+                t.seen_with.add(older.track_id)
         younger.state = TrackState.MERGED
         younger.merged_into = older.victim_id
         log.info("victim %d merged into %d", younger.victim_id, older.victim_id)

@@ -227,6 +227,27 @@ def test_a_merged_victim_keeps_having_been_seen_whole() -> None:
     assert survivor["body_seen"] is True
 
 
+def test_a_track_seen_beside_a_merged_id_is_seen_beside_its_survivor() -> None:
+    """A tentative track seen in the same frame as a victim's younger ID stays another
+    body when that ID merges into the older one (else, near the survivor and never
+    seen with it, it would be taken for a stray fix of it)."""
+    tracker = VictimTracker(PARAMS)
+    older_id = confirmed_victim(tracker, 5.0, 0.0, 0.0)
+    younger_id = confirmed_victim(tracker, 0.0, 0.0, 10.0)
+    for t in (13.0, 13.2, 13.4):
+        tracker.update([obs(0.0, 0.0, t, 0.01), obs(0.0, 0.6, t, 0.01)], T0 + t, always)
+    snap = tracker.snapshot()
+    by_victim = {t["victim_id"]: t for t in snap["tracks"]}
+    [beside] = (t for t in snap["tracks"] if not t["victim_id"])
+    assert beside["seen_with"] == [by_victim[younger_id]["track_id"]]
+    by_victim[older_id]["x"] = [0.01, 0.0]  # the same victim as the younger ID
+    restored = VictimTracker.restore(PARAMS, snap)
+    events = restored.update([], T0 + 14, never)
+    assert [e.kind for e in events] == [EventKind.MERGED]
+    [beside] = (t for t in restored.snapshot()["tracks"] if not t["victim_id"])
+    assert by_victim[older_id]["track_id"] in beside["seen_with"]
+
+
 def test_a_restart_remembers_which_victims_were_seen_whole_and_together() -> None:
     """After a restart, a lone hand of a victim seen whole still only supports it, and
     a tentative track seen in a frame with a victim 0.6 m away (two people side by
