@@ -251,21 +251,28 @@ def test_a_track_seen_beside_a_merged_id_is_seen_beside_its_survivor() -> None:
 def test_a_restart_remembers_which_victims_were_seen_whole_and_together() -> None:
     """After a restart, a lone hand of a victim seen whole still only supports it, and
     a tentative track seen in a frame with a victim 0.6 m away (two people side by
-    side) is still confirmed. A snapshot from before these were stored restores as
-    before: neither known."""
+    side) is still confirmed, also on frames without that victim. A snapshot from
+    before these were stored restores as before: neither known."""
     tracker = VictimTracker(PARAMS)
     whole = confirmed_victim(tracker, 0.0, 0.0, 0.0)
     tight = 0.01
-    tracker.update([obs(0.0, 0.0, 10.0, tight), obs(0.0, 0.6, 10.0, tight)], T0 + 10, always)
+    for t in (10.0, 10.2, 10.4):
+        tracker.update([obs(0.0, 0.0, t, tight), obs(0.0, 0.6, t, tight)], T0 + t, always)
     snap = tracker.snapshot()
+    [beside] = (t for t in snap["tracks"] if not t["victim_id"])
+    whole_track = next(t["track_id"] for t in snap["tracks"] if t["victim_id"] == whole)
+    assert beside["seen_with"] == [whole_track]
     restored = VictimTracker.restore(PARAMS, snap)
     assert restored.snapshot() == snap
     before = restored.victim(whole)
     for k in range(11, 16):
         hand = dataclasses.replace(obs(0.6, 0.0, k, 0.09, visibility_pct=4.0), part_only=True)
-        restored.update([hand, obs(0.0, 0.6, k, tight)], T0 + k, always)
+        restored.update([hand], T0 + k, always)
     after = restored.victim(whole)
     assert (after.north_m, after.east_m) == (before.north_m, before.east_m)
+    # The second person alone: only the restored link tells it from a stray fix.
+    for k in range(16, 21):
+        restored.update([obs(0.0, 0.6, k, tight)], T0 + k, always)
     assert len(restored.victims()) == 2
     for track in snap["tracks"]:
         del track["body_seen"], track["seen_with"]
