@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -51,7 +53,7 @@ import numpy as np
 
 from companion.config import DetectorConfig
 from companion.detectcmd import read_image
-from companion.vision import DetectorUnavailable, make_detector
+from companion.vision import Detector, DetectorUnavailable, make_detector
 from companion.vision.visibility import assess
 from fusion.types import Urgency
 
@@ -113,6 +115,44 @@ def bury(
     return out
 
 
+@dataclass(frozen=True)
+class LevelResult:
+    """One burial level over every real_falls frame."""
+
+    people: int
+    found: int
+    false_detections: int
+    urgencies: tuple[Urgency, ...]  # one per person found whose urgency could be judged
+
+
+def measure_level(
+    detector: Detector,
+    falls_dir: Path,
+    gt: dict[str, Any],
+    textures: list[np.ndarray],
+    level_pct: int,
+) -> LevelResult:
+    """Bury each frame's people to ``level_pct`` (100: the frame as it is), detect,
+    match the detections to the boxes, and judge each found person's urgency without
+    a camera geometry."""
+    people = found = false = 0
+    urgencies: list[Urgency] = []
+    for n, (rel, truth) in enumerate(sorted(gt.items())):
+        img = read_image(falls_dir / rel)
+        if level_pct < 100:
+            img = bury(img, truth["people"], level_pct, textures, seed=1000 * level_pct + n)
+        found_by, n_false = match(detector.detect(img, None, 0.0), truth["people"])
+        false += n_false
+        people += len(found_by)
+        for d in found_by:
+            if d is None:
+                continue
+            found += 1
+            if (a := assess(d, None)) is not None:
+                urgencies.append(a.urgency)
+    return LevelResult(people, found, false, tuple(urgencies))
+
+
 def run() -> dict[str, object]:
     if not FALLS.exists():
         return {"skipped": f"no data at {FALLS}"}
@@ -126,24 +166,13 @@ def run() -> dict[str, object]:
         return {"skipped": str(exc)}
     result: dict[str, Any] = {}
     for level in LEVELS_PCT:
-        people = found = judged = right = false = 0
-        for n, (rel, truth) in enumerate(sorted(gt.items())):
-            img = read_image(FALLS / rel)
-            if level < 100:
-                img = bury(img, truth["people"], level, textures, seed=1000 * level + n)
-            dets = detector.detect(img, None, 0.0)
-            found_by, n_false = match(dets, truth["people"])
-            false += n_false
-            for d in found_by:
-                a = None if d is None else assess(d, None)
-                if a is not None:
-                    judged += 1
-                    right += a.urgency in RIGHT_URGENCY[level]
-            people += len(found_by)
-            found += sum(d is not None for d in found_by)
-        result[f"recall_at_{level}pct"] = found / people
-        result[f"urgency_right_at_{level}pct"] = right / judged if judged else math.nan
-        result[f"false_detections_at_{level}pct"] = false
+        r = measure_level(detector, FALLS, gt, textures, level)
+        right = sum(u in RIGHT_URGENCY[level] for u in r.urgencies)
+        result[f"recall_at_{level}pct"] = r.found / r.people
+        result[f"urgency_right_at_{level}pct"] = (
+            right / len(r.urgencies) if r.urgencies else math.nan
+        )
+        result[f"false_detections_at_{level}pct"] = r.false_detections
     return result
 
 

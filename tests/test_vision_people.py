@@ -18,9 +18,10 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.burial import TEXTURES, bury
-from bench.real_images import hits_box, match
+from bench.burial import TEXTURES, measure_level
+from bench.real_images import hits_box
 from companion.config import DetectorConfig
+from companion.detectcmd import read_image
 from companion.vision import FrameGeometry, assess, make_detector, models, ssd
 from companion.vision.people import (
     FACE_SPEC,
@@ -173,22 +174,11 @@ def test_people_under_real_debris_read_as_partly_visible(
     (2026-11-27); capped by the share of joints its heatmaps see, 14. Of the 24
     uncovered people 20 stay LIGHT (24 by the mask alone)."""
     root, gt = _falls(shared_data)
-    textures = [cv2.imread(str(shared_data / "images" / "negatives" / n)) for n in TEXTURES]
+    textures = [read_image(shared_data / "images" / "negatives" / n) for n in TEXTURES]
     single = make_detector(DetectorConfig(backend="people", enhance=False), single_images=True)
-    judged = ok = 0
-    for n, (rel, truth) in enumerate(sorted(gt.items())):
-        image = cv2.imread(str(root / rel))
-        boxes = truth["people"]  # type: ignore[index]
-        if visible_pct < 100:
-            image = bury(image, boxes, visible_pct, textures, seed=1000 * visible_pct + n)
-        found_by, _false = match(single.detect(image, None, 0.0), boxes)
-        for d in found_by:
-            a = None if d is None else assess(d, None)
-            if a is not None:
-                judged += 1
-                ok += a.urgency is right
-    assert judged >= 14
-    assert ok >= min_right_share * judged
+    level = measure_level(single, root, gt, textures, visible_pct)
+    assert len(level.urgencies) >= 14
+    assert sum(u is right for u in level.urgencies) >= min_right_share * len(level.urgencies)
 
 
 def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
