@@ -5,6 +5,9 @@ the autopilot's boot clock restarts when it reboots, the world's clock does not)
 
 - ``lawnmower(world)``: lanes along the floor's long side (north), ``lane_spacing_m``
   apart, inside a margin.
+- ``route_of(world)``: the world's route (or the lawnmower) as a rover drives it:
+  around tall debris, piles on people and the people themselves
+  (``scenarios.pathplan``), back on the lane after each detour.
 - ``Trajectory``: a skid-steer rover following waypoints at ``speed_m_s`` with a
   turn-rate limit, slowing for and turning in place at sharp corners, with a
   little roll and pitch from the rough floor. Deterministic: the state is
@@ -23,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scenarios.camera import VEHICLE_HEIGHT_M
+from scenarios.pathplan import drivable_route
 from scenarios.world import PointNE, World
 
 _DT_S = 0.02  # integration step
@@ -68,8 +72,9 @@ def lawnmower(
 
 
 def route_of(world: World) -> tuple[PointNE, ...]:
-    """The world's own route, or the default lawnmower."""
-    return world.route_ne_m or lawnmower(world)
+    """The world's own route, or the default lawnmower, driven around obstacles and
+    bodies (scenarios.pathplan)."""
+    return drivable_route(world, world.route_ne_m or lawnmower(world))
 
 
 def _wrap(a: float) -> float:
