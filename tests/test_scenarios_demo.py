@@ -14,9 +14,9 @@ from hq.registry import Registry
 from hq.view import hq_victims
 
 REPO = Path(__file__).resolve().parents[1]
-# At the demo's 0.4 m/s the mixed preset's arm out of the rubble (T3) and its
-# whole-body victim (T1) are both confirmed within the first 50 s (neither in 36 s).
-MISSION_S = 50.0
+# At the demo's 0.4 m/s the mixed preset's whole-body victim (T1) is reported at
+# 49.5 s, on the rover's second lane (its route goes around debris and people).
+MISSION_S = 60.0
 
 
 def _demo(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
