@@ -136,7 +136,7 @@ SUITE: tuple[Scenario, ...] = (
     Scenario("lawnmower", f"seed:{LAWNMOWER_SEED}"),
 )
 # The test's subset: the start of two routes, each long enough for one victim to be
-# reported (code 5057a7a at 5 frames/s: "mixed" T1 reported at 49.5 s, T3 at
+# reported (code e84f8b7 at 5 frames/s: "mixed" T1 reported at 49.5 s, T3 at
 # 99.9 s; seed 2's T3 at 68.3 s), so a victim lost, a class wrong, a position
 # moved or a false victim shows. About 45 s for both on this machine; covering
 # every victim would take about twice as long, more than the test run can spend.
