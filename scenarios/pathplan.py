@@ -14,8 +14,9 @@ real rover gives (on 2026-11-27 up to 9.7 m of the 60.8 m suite route ran throug
 tall debris and 2.4 m over bodies).
 
 ``drivable_route`` plans each leg between two waypoints on a grid of ``cell_m`` by
-A* (8-connected, octile distance), then keeps only the points line of sight needs.
-A waypoint inside an obstacle moves to the nearest free cell; a waypoint that
+A* (8-connected, octile distance, and a cost for leaving the leg's straight line so
+that a detour comes back to the lane), then keeps only the points line of sight
+needs. A waypoint inside an obstacle moves to the nearest free cell; a waypoint that
 cannot be reached from the last one is skipped. Pure and deterministic: the same
 world and route give the same path.
 """
@@ -177,15 +178,13 @@ def _max_off(pts: np.ndarray) -> float:
 
 
 def drivable_route(
-    world: World,
-    route: tuple[PointNE, ...],
-    params: PlanParams | None = None,
-    start_ne_m: PointNE | None = None,
+    world: World, route: tuple[PointNE, ...], params: PlanParams | None = None
 ) -> tuple[PointNE, ...]:
-    """``route`` (from ``start_ne_m``, default the world's start) with every leg
-    going around the obstacles (module docstring)."""
+    """``route``, from the world's start, with every leg going around the obstacles
+    (module docstring). Where nothing can be reached (a floor all obstacle, a start
+    walled in), the route as given."""
     obstacles = Obstacles(world, params)
-    start = start_ne_m if start_ne_m is not None else world.start_ne_m
+    start = world.start_ne_m
     here = obstacles.nearest_free(obstacles.cell(start))
     if here is None:
         return route  # nowhere to drive: the floor is all obstacle
