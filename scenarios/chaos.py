@@ -55,6 +55,7 @@ from scenarios.chaoscheck import (
     longest_silence_s,
 )
 from scenarios.live import LiveSim
+from scenarios.motion import Trajectory, route_of
 from scenarios.radio import Radio
 from scenarios.supervise import Supervised
 from scenarios.world import PointNE, World, preset
@@ -131,23 +132,41 @@ def chaos_world() -> World:
 
 
 def patrol_route(world: World, mission_s: float) -> tuple[PointNE, ...]:
-    """Back and forth (north-south) across one person after the other, a third of
-    the mission each, so the people are found one at a time while the faults come:
-    from one patrol the next person is 8 m to the side, out of view. The last
-    patrol goes on past the mission's end (the rover never stops)."""
+    """Back and forth (north-south) past one person after the other, a third of the
+    mission each, so the people are found one at a time while the faults come: from
+    one patrol the next person is 8 m to the side, out of view. Each pass meets its
+    person head-on and goes around them (the route as the rover drives it:
+    ``scenarios.pathplan``), so the passes are counted by the time the rover takes,
+    turns and detours included. The last patrol goes on past the mission's end (the
+    rover never stops)."""
     n_max = world.size_m[0] - 0.3
+    share_s = mission_s / len(world.victims)
     route: list[PointNE] = []
-    budget_m = mission_s / len(world.victims) * SPEED_M_S
+    elapsed_s = 0.0
+    here, heading = world.start_ne_m, world.start_heading_rad
     for i, v in enumerate(world.victims):
         near = (max(0.3, v.north_m - _LEAD_M), v.east_m)
         far = (min(n_max, v.north_m + _LEAD_M), v.east_m)
-        driven = math.dist(route[-1], near) if route else 0.0
+        if here != near:
+            elapsed_s += _drive_s(world, here, heading, (near,))
         route.append(near)
-        last = i == len(world.victims) - 1
-        while driven < budget_m * (3 if last else 1):
-            route += [far, near]
-            driven += 2 * math.dist(near, far)
+        one = _drive_s(world, near, 0.0, (far, near))
+        lap_s = _drive_s(world, near, 0.0, (far, near, far, near)) - one  # with its turns
+        end_s = share_s * (i + 1) if i < len(world.victims) - 1 else mission_s + 2 * share_s
+        laps = max(1, round((end_s - elapsed_s) / lap_s))
+        route += [far, near] * laps
+        elapsed_s += laps * lap_s
+        here, heading = near, math.pi  # back at the near end, heading south
     return tuple(route)
+
+
+def _drive_s(world: World, start: PointNE, heading_rad: float, route: tuple[PointNE, ...]) -> float:
+    """Seconds the rover takes to drive ``route`` from ``start``, as route_of plans it."""
+    leg = dataclasses.replace(
+        world, start_ne_m=start, start_heading_rad=heading_rad, route_ne_m=route
+    )
+    trajectory = Trajectory(start, heading_rad, route_of(leg), speed_m_s=SPEED_M_S, seed=world.seed)
+    return trajectory.duration_s()
 
 
 @dataclass(frozen=True)
