@@ -3,8 +3,9 @@
 ``scenarios.chaos.run_chaos``: the real ``rescue-companion run`` and ``rescue-hq``
 (restarted as systemd would, 2 s after a failure) on the simulated rover, with its
 camera at 5 frames/s. The three people of the ``mixed`` preset lie 8 m apart (debris
-cleared, all fully visible); the rover patrols across one after the other, a third
-of the mission each, so they are found one at a time while the faults come. The HQ hears the rover only through a simulated radio that loses 30 %
+cleared, all fully visible); the rover patrols across one after the other (over
+each person: this bench tests the service, not the search), a third of the
+mission each, so they are found one at a time while the faults come. The HQ hears the rover only through a simulated radio that loses 30 %
 of the datagrams each way (seeded). A seeded schedule kills the companion with
 SIGKILL once per 150 s at random moments, stops the HQ once with SIGTERM and once
 with SIGKILL, reboots the autopilot once, and fills the companion's state disk (a

@@ -2,7 +2,8 @@
 
 The real ``rescue-companion run`` process, pinned to its own core, on the simulated
 rover (which, with its renderer and camera server, runs in this process on another
-core), with the ``mixed`` world's lawnmower route repeated to fill the mission.
+core), with the ``mixed`` world's lawnmower route (driven around debris and people)
+repeated to fill the mission.
 
 - latency: for each victim's first report, arrival at the ground station (after the
   rover's routing) minus the capture time of the frame that confirmed it

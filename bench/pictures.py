@@ -1,7 +1,7 @@
 """Evidence pictures over a simulated 57,600-baud radio at 10 % loss: bytes, transfer time, report latency
 
 The real ``rescue-companion run`` on the simulated rover (``mixed`` world, its
-lawnmower route) sends everything to the HQ through the rover's ArduPilot-like
+lawnmower route, driven around debris and people) sends everything to the HQ through the rover's ArduPilot-like
 router (TUNNEL), whose ground port reaches the real ``rescue-hq`` through
 scenarios.radio: 5,760 bytes a second each way (57,600 baud, 8N1), a 4 kB radio
 buffer, 10 % of the datagrams (one MAVLink frame each) lost each way, seeded. The

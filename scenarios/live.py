@@ -21,7 +21,7 @@ from companion.config import CameraConfig
 from scenarios.camserver import CameraServer
 from scenarios.render import Renderer
 from scenarios.rover import SimRover
-from scenarios.world import World
+from scenarios.world import PointNE, World
 
 
 def _patrol(world: World, lead_m: float = 2.5, passes: int = 40) -> World:
@@ -49,10 +49,17 @@ class LiveSim:
         speed_m_s: float = 0.4,
         patrol_first_victim: bool = False,
         seed: int | None = None,
+        route: tuple[PointNE, ...] | None = None,
     ) -> None:
+        """``route``: driven exactly as given (not around obstacles); None: the
+        world's route as ``scenarios.motion.route_of`` plans it."""
         self.world = _patrol(world) if patrol_first_victim else world
         self.rover = SimRover(
-            self.world, ["udpin:127.0.0.1:0", "udpin:127.0.0.1:0"], speed_m_s=speed_m_s, seed=seed
+            self.world,
+            ["udpin:127.0.0.1:0", "udpin:127.0.0.1:0"],
+            route=route,
+            speed_m_s=speed_m_s,
+            seed=seed,
         )
         try:
             model = camera_model(camera or CameraConfig())
