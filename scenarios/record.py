@@ -186,6 +186,6 @@ def _truth(
             for v in world.victims
         ],
         "lookalike_debris": sum(1 for d in world.debris if d.kind.startswith("lookalike")),
-        "route_ne_m": [list(p) for p in route_of(world)],
+        "route_ne_m": [list(p) for p in trajectory.route],
         "true_path_unix_n_e_yaw": path,
     }
