@@ -40,11 +40,10 @@ def _path_cells(world: World, route: tuple[tuple[float, float], ...], step_m: fl
 def _min_clearance_m(world: World, route: tuple[tuple[float, float], ...]) -> float:
     """The least distance from the route to anything the rover must keep off."""
     touching = Obstacles(world, PlanParams(clearance_m=0.0))
-    blocked = np.argwhere(touching.blocked)
     cell = touching.cell_m
+    centres = (np.argwhere(touching.blocked) + 0.5) * cell
     best = math.inf
     for p in _path_cells(world, route, 0.05):
-        centres = (blocked + 0.5) * cell
         best = min(best, float(np.hypot(*(centres - np.array(p)).T).min()) - cell / 2)
     return best
 
