@@ -11,7 +11,8 @@ sleeves (long, or short with bare forearms) and dust are painted on the surface.
 Body frame before posture: x along the body from the feet to the head, y to the
 body's left, z up out of its chest (a body on its back). A posture rolls the body
 about x (side: 90 degrees, face down: 180) and lifts it so that it rests on the
-floor. ``heading_rad`` is the NED yaw of the x axis; (north_m, east_m) is the
+floor; face down, the limbs rest on the floor on their fronts and the feet lie
+stretched, so that the body lies flat on its chest, as a person does. ``heading_rad`` is the NED yaw of the x axis; (north_m, east_m) is the
 centre of its floor footprint (feet to crown, side to side).
 """
 
@@ -78,6 +79,12 @@ class Body3D:
     scale: float  # height / 1.7 m: the body's size relative to an adult's
 
 
+# Face down, the floor is where the chest's front is, in the supine body frame (z out
+# of the chest, times the body's scale): the chest (centre 0.11, depth 0.105) is the
+# body's lowest part, and the limbs rest on the floor at this level, not at z = 0.
+PRONE_FLOOR_Z = 0.11 + 0.105
+
+
 def _rot_x(angle: float) -> F:
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], float)
@@ -132,8 +139,10 @@ def _skeleton(
                 direction = np.array([-math.cos(arm), sign * math.sin(arm), 0.0])
             elbow = shoulder + direction * 0.29 * k
             wrist = elbow + direction * 0.26 * k
-            if posture != "side":  # the arm rests on the floor from the shoulder out
+            if posture == "back":  # the arm rests on the floor from the shoulder out
                 elbow[2], wrist[2] = 0.052 * k, 0.042 * k
+            elif posture == "face_down":  # the same, on the front of the arm
+                elbow[2], wrist[2] = (PRONE_FLOOR_Z - 0.052) * k, (PRONE_FLOOR_Z - 0.042) * k
         cap(f"{side}_upper_arm", TOP, shoulder, elbow, 0.047)
         cap(f"{side}_forearm", SKIN if sleeves == "short" else TOP, elbow, wrist, 0.038)
         hand_dir = (wrist - elbow) / max(float(np.linalg.norm(wrist - elbow)), 1e-9)
@@ -147,6 +156,8 @@ def _skeleton(
             knee = hip + direction * 0.43 * k
             ankle = knee + direction * 0.42 * k
             knee[2], ankle[2] = 0.078 * k, 0.06 * k  # the leg rests on the floor
+            if posture == "face_down":  # on the front of the thigh and shin
+                knee[2], ankle[2] = (PRONE_FLOOR_Z - 0.077) * k, (PRONE_FLOOR_Z - 0.06) * k
             if posture == "side":
                 # The lower leg lies on the floor (the body rests on its lower arm and
                 # shoulder, 0.24 m below the spine) and the upper leg on the lower one.
@@ -156,8 +167,11 @@ def _skeleton(
         cap(f"{side}_thigh", TROUSERS, hip, knee, 0.075)
         cap(f"{side}_shin", TROUSERS, knee, ankle, 0.056)
         shin_dir = (ankle - knee) / max(float(np.linalg.norm(ankle - knee)), 1e-9)
-        # The foot points out of the front of the body (toes up on the back).
-        foot_dir = np.array([0.0, 0.0, 1.0]) if not curled else -np.array([1.0, 0.0, 0.0])
+        # The foot points out of the front of the body (toes up on the back); face
+        # down it is stretched along the shin, its top on the floor (pointing into
+        # the floor it held the whole body up on its toes, 0.12 m above the floor).
+        stretched = curled or posture == "face_down"
+        foot_dir = -np.array([1.0, 0.0, 0.0]) if stretched else np.array([0.0, 0.0, 1.0])
         sc = ankle + shin_dir * 0.03 * k + foot_dir * 0.06 * k
         out.append(
             (

@@ -42,3 +42,16 @@ def test_a_body_on_its_side_puts_its_hands_and_legs_down(arm_deg: float) -> None
     # The upper shin's underside touches the lower shin's top (within 2 cm).
     lower_top = -(min(float(lower.a[2]), float(lower.b[2])) - lower.radius_m)
     assert abs(_height_above_floor_m(upper) - lower_top) < 0.02
+
+
+@pytest.mark.parametrize("posture", ["back", "face_down"])
+def test_a_body_on_its_back_or_front_lies_flat(posture: Posture) -> None:
+    """On the back or face down, the chest, both shins, both forearms and both feet
+    lie on the floor (within 3 cm). Face down, the feet once pointed into the floor
+    and held the whole body up on its toes, legs and arms 0.12 m in the air: a
+    plank, not a person lying there, and the rover's camera saw the floor under it."""
+    body = build_body(0.0, 0.0, 0.3, 1.75, posture, math.radians(50), math.radians(20))
+    for side in ("left", "right"):
+        for part in ("shin", "forearm", "shoe"):
+            assert _height_above_floor_m(_solid(body, f"{side}_{part}")) < 0.03, (side, part)
+    assert _height_above_floor_m(_solid(body, "chest")) < 0.03
