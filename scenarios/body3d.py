@@ -12,8 +12,9 @@ Body frame before posture: x along the body from the feet to the head, y to the
 body's left, z up out of its chest (a body on its back). A posture rolls the body
 about x (side: 90 degrees, face down: 180) and lifts it so that it rests on the
 floor; face down, the limbs rest on the floor on their fronts and the feet lie
-stretched, so that the body lies flat on its chest, as a person does. ``heading_rad`` is the NED yaw of the x axis; (north_m, east_m) is the
-centre of its floor footprint (feet to crown, side to side).
+stretched, so that the body lies flat on its chest, as a person does.
+``heading_rad`` is the NED yaw of the x axis; (north_m, east_m) is the centre of
+its floor footprint (feet to crown, side to side).
 """
 
 from __future__ import annotations
