@@ -26,7 +26,6 @@ bench.e2e SECONDS`` runs a shorter one by hand.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import signal
 import statistics
@@ -44,7 +43,7 @@ from mavlink_io.convert import msg_to_victim_report
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.motion import lawnmower
-from scenarios.score import GroundTruth, ReportedVictim, ScoreResult, TrueVictim, score
+from scenarios.score import ReportedVictim, ScoreResult, score, truth_of_world
 from scenarios.world import World, preset
 
 MISSION_S = 600.0
@@ -79,20 +78,7 @@ def _score(world: World, messages: list[tuple[float, Any]]) -> ScoreResult:
         for r in reports
         if r.state not in gone
     ]
-    truth = GroundTruth(
-        tuple(
-            TrueVictim(
-                v.victim_id,
-                v.north_m,
-                v.east_m,
-                v.urgency,
-                None if math.isnan(v.visible_north_m) else v.visible_north_m,
-                None if math.isnan(v.visible_east_m) else v.visible_east_m,
-            )
-            for v in world.victims
-        )
-    )
-    return score(truth, reported)
+    return score(truth_of_world(world), reported)
 
 
 def run(mission_s: float = MISSION_S) -> dict[str, object]:

@@ -51,13 +51,12 @@ from scenarios.live import LiveSim
 from scenarios.motion import Trajectory, route_of
 from scenarios.record import record
 from scenarios.score import (
-    GroundTruth,
     ReportedVictim,
     ScoreResult,
-    TrueVictim,
     format_score,
     load_truth,
     score,
+    truth_of_world,
 )
 from scenarios.world import World
 
@@ -106,23 +105,6 @@ def _stop(proc: subprocess.Popen[bytes], name: str) -> int:
         log.error("%s did not stop within %.0f s; killed", name, _STOP_TIMEOUT_S)
         proc.kill()
         return proc.wait()
-
-
-def _truth(world: World, first_in_view: dict[int, float]) -> GroundTruth:
-    return GroundTruth(
-        tuple(
-            TrueVictim(
-                v.victim_id,
-                v.north_m,
-                v.east_m,
-                v.urgency,
-                None if math.isnan(v.visible_north_m) else v.visible_north_m,
-                None if math.isnan(v.visible_east_m) else v.visible_east_m,
-                first_in_view.get(v.victim_id),
-            )
-            for v in world.victims
-        )
-    )
 
 
 # What a demo run writes into its folder; a fresh run (no --resume) removes them first.
@@ -408,7 +390,7 @@ def _summarise(
         )
         for v in victims
     ]
-    result = score(_truth(world, first_in_view), reported)
+    result = score(truth_of_world(world, first_in_view), reported)
     map_png = out_dir / "mission_map.png"
     draw_mission_map(
         map_png,

@@ -39,6 +39,7 @@ from scipy.optimize import linear_sum_assignment
 from fusion.kalman import mahalanobis2
 from fusion.types import Urgency
 from scenarios.errors import SimError
+from scenarios.world import World
 
 GATE_M = 1.0
 CHI2_95_2DOF = 5.991
@@ -336,6 +337,29 @@ def _covariance(
     if out is None or not all(math.isfinite(x) for row in out for x in row):
         raise ScoreInputError(f"{where}.cov_ne_m2 = {cov!r}: expected a finite 2x2 list")
     return out
+
+
+def truth_of_world(
+    world: World, first_in_view_unix_s: dict[int, float] | None = None
+) -> GroundTruth:
+    """The ground truth of a world held in memory (a live mission's; a recorded one
+    has its ground_truth.json): each victim's centre, visible part and urgency, and
+    when it first came into view where that is known."""
+    seen = first_in_view_unix_s or {}
+    return GroundTruth(
+        tuple(
+            TrueVictim(
+                v.victim_id,
+                v.north_m,
+                v.east_m,
+                v.urgency,
+                None if math.isnan(v.visible_north_m) else v.visible_north_m,
+                None if math.isnan(v.visible_east_m) else v.visible_east_m,
+                seen.get(v.victim_id),
+            )
+            for v in world.victims
+        )
+    )
 
 
 def load_truth(path: Path) -> GroundTruth:
