@@ -62,9 +62,12 @@ def _pin_to(core: int) -> None:
     os.sched_setaffinity(0, {core})
 
 
-def _score(world: World, messages: list[tuple[float, Any]]) -> ScoreResult:
+def _score(
+    world: World, messages: list[tuple[float, Any]]
+) -> tuple[ScoreResult, list[ReportedVictim]]:
     """The victims the companion holds at the end (each ID's last report, merged and
-    false-alarm IDs left out) against the world's people, as the demo scores them."""
+    false-alarm IDs left out) against the world's people, as the demo scores them;
+    and the reported victims no person was matched to (false victims, duplicates)."""
     last: dict[int, Any] = {}
     for _, m in messages:
         if m.get_type() != "RESCUE_VICTIM_REPORT":
@@ -78,7 +81,9 @@ def _score(world: World, messages: list[tuple[float, Any]]) -> ScoreResult:
         for r in reports
         if r.state not in gone
     ]
-    return score(truth_of_world(world), reported)
+    scored = score(truth_of_world(world), reported)
+    matched = {m.reported_id for m in scored.matches}
+    return scored, [r for r in reported if r.victim_id not in matched]
 
 
 def run(mission_s: float = MISSION_S) -> dict[str, object]:
@@ -130,7 +135,7 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
         if len(half) > 2
         else 0.0
     )
-    scored = _score(world, messages)
+    scored, unmatched = _score(world, messages)
     errors = sorted(m.error_m for m in scored.matches)
     return {
         "mission length, s": round(mission_s),
@@ -138,6 +143,10 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
         "people found, of the world's": f"{len(scored.matches)} of {scored.true_victims}",
         "false victims at the end": scored.false_victims,
         "duplicate IDs at the end": sum(scored.duplicates.values()),
+        "unmatched reports at the end (ID: north, east m)": "; ".join(
+            f"{r.victim_id}: {r.north_m:.2f}, {r.east_m:.2f}" for r in unmatched
+        )
+        or "none",
         "median error of the found, m": round(statistics.median(errors), 3) if errors else "n/a",
         "urgency right, of the found": sum(m.urgency_ok for m in scored.matches),
         "capture-to-wire latency median, ms": round(1000 * statistics.median(latencies), 1)

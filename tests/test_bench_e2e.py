@@ -42,9 +42,10 @@ def test_the_latest_report_of_each_id_is_scored_and_merged_ids_are_not() -> None
         # ID 3 lies where no one lies: a false victim.
         (2.0, _msg(3, 4, 0.5, 0.5, TrackState.CONFIRMED)),
     ]
-    scored = _score(world, messages)
+    scored, unmatched = _score(world, messages)
     assert [m.true_id for m in scored.matches] == [t1.victim_id]
     assert scored.matches[0].error_m < 0.15  # where ID 1 ended, not its first report
     assert scored.false_victims == 1
+    assert [(r.victim_id, r.north_m, r.east_m) for r in unmatched] == [(3, 0.5, 0.5)]
     assert sum(scored.duplicates.values()) == 0
     assert scored.true_victims == len(world.victims)
