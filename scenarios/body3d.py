@@ -80,10 +80,12 @@ class Body3D:
     scale: float  # height / 1.7 m: the body's size relative to an adult's
 
 
-# Face down, the floor is where the chest's front is, in the supine body frame (z out
-# of the chest, times the body's scale): the chest (centre 0.11, depth 0.105) is the
-# body's lowest part, and the limbs rest on the floor at this level, not at z = 0.
-PRONE_FLOOR_Z = 0.11 + 0.105
+# The chest's centre above the back and its half depth, in the supine body frame (z
+# out of the chest, times the body's scale).
+_CHEST_Z, _CHEST_DEPTH = 0.11, 0.105
+# Face down, the floor is where the chest's front is: the chest is the body's lowest
+# part, and the limbs rest on the floor at this level, not at z = 0.
+PRONE_FLOOR_Z = _CHEST_Z + _CHEST_DEPTH
 
 
 def _rot_x(angle: float) -> F:
@@ -117,7 +119,7 @@ def _skeleton(
     for side, sign in (("left", 1.0), ("right", -1.0)):  # ears break the ball's outline
         ell(f"{side}_ear", SKIN, v(0.725, sign * 0.083, 0.10), 0.032, 0.012, 0.02)
     cap("neck", SKIN, v(0.57, 0, 0.1), v(0.65, 0, 0.1), 0.052)
-    ell("chest", TOP, v(0.40, 0, 0.11), 0.17, 0.185, 0.105)
+    ell("chest", TOP, v(0.40, 0, _CHEST_Z), 0.17, 0.185, _CHEST_DEPTH)
     ell("belly", TOP, v(0.17, 0, 0.1), 0.15, 0.16, 0.095)
     ell("pelvis", TROUSERS, v(-0.02, 0, 0.095), 0.12, 0.175, 0.095)
     for side, sign, arm in (("left", 1.0, left_arm_rad), ("right", -1.0, right_arm_rad)):
