@@ -37,7 +37,7 @@ beside a body whose legs still show. Their person scores (0.5-0.78), landmark fl
 landmark visibilities and limb proportions overlap those of the buried people found
 (measured 2026-11-26), so no rule on them removes these without losing buried people.
 Live, one frame's detection becomes a victim only when the tracker has seen it on
-several frames (three, with no miss between).
+several frames (three, with at most two misses between them).
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ def confirmed_victim(tracker: VictimTracker, north_m: float, east_m: float, t0: 
 
 def test_confirmation_needs_support_and_ids_are_consecutive() -> None:
     tracker = VictimTracker(PARAMS, first_id=7)
-    # Three hits of 0.85 reach 2.5: the third update confirms, not the second.
+    # Three hits of 0.85 reach 2.55 >= 2.1: the third update confirms, not the second.
     assert tracker.update([obs(1.0, 1.0, 0.0)], T0, always) == []
     assert tracker.update([obs(1.05, 1.0, 0.1)], T0 + 0.1, always) == []
     assert tracker.victims() == []
@@ -110,6 +110,26 @@ def test_a_body_found_on_a_third_of_the_frames_in_view_is_confirmed() -> None:
         hit = [obs(2.0, 0.0, 0.1 * k)] if k % 6 == 0 else []
         tracker.update(hit, T0 + 0.1 * k, always)
     assert tracker.victims() == []
+
+
+def _confirmed_after(frames_with_a_hit: set[int]) -> bool:
+    tracker = VictimTracker(PARAMS)
+    for k in range(max(frames_with_a_hit) + 1):
+        hit = [obs(2.0, 0.0, 0.1 * k)] if k in frames_with_a_hit else []
+        tracker.update(hit, T0 + 0.1 * k, always)
+    return len(tracker.victims()) == 1
+
+
+def test_three_detections_in_five_frames_in_view_confirm() -> None:
+    """A child seen at 2 m and a face-down body at 1.5 m were each detected on three
+    of five frames in plain view (hit, hit, miss, miss, hit) and never confirmed
+    while the rule was three detections with no miss between (scenario suite,
+    2026-11-27). Three detections with two misses between them confirm; with three
+    misses between they do not: a spot seen so seldom is more likely a phantom."""
+    assert _confirmed_after({0, 1, 4})
+    assert _confirmed_after({0, 2, 4})
+    assert not _confirmed_after({0, 1, 5})
+    assert not _confirmed_after({0, 3, 6})
 
 
 def test_confirmed_victims_are_never_deleted_and_flagged_when_unseen() -> None:
