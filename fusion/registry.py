@@ -124,10 +124,12 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "first_seen_unix_s", "last_seen_unix_s",
 #                "history": [[t_unix_s, visibility_pct, quality], ...],
 #                "urgency" (Urgency name), "visibility_pct", "merged_into": int | null,
-#                "body_seen": bool, "seen_with": [track_id, ...]}]}
+#                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...]}]}
 #
-# "body_seen" and "seen_with" were added to version 1 on 2026-11-27; a snapshot written
-# before reads as false and [] (what a restart gave until then).
+# "seen_with" was added to version 1 on 2026-11-27 (a snapshot written before reads as
+# []), and "body_seen": bool with it, which "body_hits" and "part_hits" (detections as
+# a body, and as a lone hand or face) replaced the same day: a snapshot with
+# "body_seen" reads as 1 and 0 hits when it is true, else as 0 and 0.
 
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
 SNAPSHOT_VERSION = 1
@@ -153,7 +155,8 @@ class TrackRecord:
     urgency: Urgency
     visibility_pct: float
     merged_into: int | None
-    body_seen: bool = False  # seen as a body, not only as a lone hand or face
+    body_hits: int = 0  # detections as a body
+    part_hits: int = 0  # detections as a lone hand or face only
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
 
 
@@ -179,7 +182,8 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "urgency": r.urgency.name,
                 "visibility_pct": r.visibility_pct,
                 "merged_into": r.merged_into,
-                "body_seen": r.body_seen,
+                "body_hits": r.body_hits,
+                "part_hits": r.part_hits,
                 "seen_with": list(r.seen_with),
             }
             for r in records
@@ -250,9 +254,11 @@ def _record(obj: Any, where: str) -> TrackRecord:
     if (merged_into is not None) != (state == TrackState.MERGED):
         raise FusionError(f"snapshot{where}: merged_into must be set exactly for MERGED tracks")
     x = _floats(_get(obj, "x", where), 2, f"{where}.x")
-    body_seen = obj.get("body_seen", False)
+    body_seen = obj.get("body_seen", False)  # before body_hits (see the format above)
     if not isinstance(body_seen, bool):
         raise FusionError(f"snapshot{where}.body_seen: expected true or false, got {body_seen!r}")
+    body_hits = _int(obj, "body_hits", where, 0) if "body_hits" in obj else int(body_seen)
+    part_hits = _int(obj, "part_hits", where, 0) if "part_hits" in obj else 0
     seen_with = obj.get("seen_with", [])
     if not isinstance(seen_with, list) or not all(
         isinstance(i, int) and not isinstance(i, bool) and i >= 1 for i in seen_with
@@ -275,7 +281,8 @@ def _record(obj: Any, where: str) -> TrackRecord:
         urgency=_enum(_get(obj, "urgency", where), Urgency, f"{where}.urgency"),
         visibility_pct=_float(_get(obj, "visibility_pct", where), f"{where}.visibility_pct"),
         merged_into=merged_into,
-        body_seen=body_seen,
+        body_hits=body_hits,
+        part_hits=part_hits,
         seen_with=tuple(sorted(set(seen_with))),
     )
 

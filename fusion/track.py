@@ -34,8 +34,9 @@ class Track:
     # Confirmed tracks detected in the same frame as this tentative one (so not the
     # same body).
     seen_with: set[int] = field(default_factory=set, repr=False)
-    # Seen as a body, not only as a lone part (a hand, a face).
-    body_seen: bool = field(default=False, repr=False)
+    # Detections of it as a body, and as a lone part (a hand, a face) only.
+    body_hits: int = field(default=0, repr=False)
+    part_hits: int = field(default=0, repr=False)
 
     @property
     def x(self) -> FloatArray:
@@ -95,7 +96,8 @@ def record_of(t: Track) -> TrackRecord:
         urgency=t.urgency,
         visibility_pct=t.visibility_pct,
         merged_into=t.merged_into,
-        body_seen=t.body_seen,
+        body_hits=t.body_hits,
+        part_hits=t.part_hits,
         seen_with=tuple(sorted(t.seen_with)),
     )
 
@@ -117,5 +119,6 @@ def track_of(rec: TrackRecord, urgency_window: int) -> Track:
         victim_id=rec.victim_id,
         merged_into=rec.merged_into,
         seen_with=set(rec.seen_with),
-        body_seen=rec.body_seen,
+        body_hits=rec.body_hits,
+        part_hits=rec.part_hits,
     )

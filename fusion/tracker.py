@@ -24,8 +24,12 @@ Per ``update`` (one processed camera frame, with or without detections):
    so a broad track does not steal a detection from a sharp one);
 3. matched tracks are updated and gain ``hit_log_odds`` (a RESCUED or FALSE_ALARM
    track absorbs its observations: no support, no events; a lone part, a hand or a
-   face, of a victim already seen as a body only supports it: where a hand lies is
-   not where its body lies, nor does it show how much of the body is buried); an
+   face, of a victim already seen as a body supports it without moving it: where a
+   hand lies is not where its body lies. Nor does it count for the victim's
+   visibility while the victim is detected as a body at least as often as as a
+   lone part; once its lone part is seen more often, little of the body shows, and
+   the part's few percent count: an exposed arm taken once for a person at 2 m and
+   then seen as a lone hand four times read MEDIUM instead of CRITICAL); an
    unmatched observation within ``new_track_exclusion_chi2`` of a live track is an
    outlier or a duplicate detection of it and is dropped, as is one within
    ``merge_chi2`` of another observation starting a track in the same frame (else
@@ -245,9 +249,12 @@ class VictimTracker:
         if t.state == TrackState.NOT_SEEN_RECENTLY:
             t.state = TrackState.CONFIRMED
             events.append(TrackEvent(EventKind.SEEN_AGAIN, victim_of(t)))
-        if _part_of_body(t, obs):
-            return  # its hand alone says nothing of how much of the body shows
-        t.body_seen = t.body_seen or not obs.part_only
+        if obs.part_only:
+            t.part_hits += 1
+        else:
+            t.body_hits += 1
+        if obs.part_only and 0 < t.part_hits <= t.body_hits:
+            return  # its hand alone says nothing of how much of a body seen as often shows
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
@@ -286,7 +293,8 @@ class VictimTracker:
             urgency=Urgency.from_visibility(obs.visibility_pct),
             visibility_pct=obs.visibility_pct,
             matched=True,
-            body_seen=not obs.part_only,
+            body_hits=0 if obs.part_only else 1,
+            part_hits=1 if obs.part_only else 0,
         )
         self._next_track_id += 1
         self._tracks[t.track_id] = t
@@ -374,7 +382,8 @@ class VictimTracker:
         merged = sorted([*older.history, *younger.history])
         older.history = deque(merged, maxlen=self._params.urgency_window)
         older.log_odds = max(older.log_odds, younger.log_odds)
-        older.body_seen = older.body_seen or younger.body_seen
+        older.body_hits += younger.body_hits
+        older.part_hits += younger.part_hits
         for t in self._tracks.values():  # seen beside the younger ID: beside the victim
             if younger.track_id in t.seen_with:
                 t.seen_with.add(older.track_id)
@@ -430,4 +439,4 @@ class VictimTracker:
 
 def _part_of_body(t: Track, obs: Observation) -> bool:
     """A lone part (a hand, a face) matched to a victim already seen as a body."""
-    return obs.part_only and t.body_seen
+    return obs.part_only and t.body_hits > 0
