@@ -26,12 +26,12 @@ Per ``update`` (one processed camera frame, with or without detections):
    track absorbs its observations: no support, no events; a lone part, a hand or a
    face, of a victim already seen as a body supports it without moving it: where a
    hand lies is not where its body lies. Nor does it count for the victim's
-   visibility while the victim is detected as a body at least as often as as a
-   lone part; once its lone part is seen more often, little of the body shows, and
-   the part's few percent count: an exposed arm taken once for a person at 2 m and
-   then seen as a lone hand four times read MEDIUM instead of CRITICAL); an
-   unmatched observation within ``new_track_exclusion_chi2`` of a live track is an
-   outlier or a duplicate detection of it and is dropped, as is one within
+   visibility while the victim has been detected as a body at least as often as it
+   has as a lone part; once the lone part is detected more often, little of the body
+   shows, and the part's few percent count: an exposed arm taken once for a person
+   at 2 m and then seen as a lone hand four times read MEDIUM instead of CRITICAL);
+   an unmatched observation within ``new_track_exclusion_chi2`` of a live track is
+   an outlier or a duplicate detection of it and is dropped, as is one within
    ``merge_chi2`` of another observation starting a track in the same frame (else
    one victim detected twice per frame, or a 1-in-100 noise outlier, would spawn a
    ghost that steals detections, confirms and later merges); the remaining
@@ -253,8 +253,8 @@ class VictimTracker:
             t.part_hits += 1
         else:
             t.body_hits += 1
-        if obs.part_only and 0 < t.part_hits <= t.body_hits:
-            return  # its hand alone says nothing of how much of a body seen as often shows
+        if obs.part_only and t.part_hits <= t.body_hits:
+            return  # a lone hand says little of how much shows of a body seen as often
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
