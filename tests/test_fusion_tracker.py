@@ -16,7 +16,7 @@ from fusion.errors import FusionError
 from fusion.geodesy import geodetic_to_ned
 from fusion.kalman import kalman_update
 from fusion.params import TrackerParams
-from fusion.registry import EventKind, moved_beyond
+from fusion.registry import EventKind, Victim, moved_beyond
 from fusion.tracker import VictimTracker
 from fusion.types import GlobalOrigin, Observation, TrackState, Urgency
 from fusion.urgency import classify, weighted_median
@@ -219,18 +219,18 @@ def test_a_lone_hand_of_a_victim_seen_whole_supports_it_but_does_not_move_it() -
     tracker = VictimTracker(PARAMS)
     whole = confirmed_victim(tracker, 0.0, 0.0, 0.0)  # three body detections
     before = tracker.victim(whole)
-    for k in range(10, 13):
-        hand = dataclasses.replace(obs(0.6, 0.0, k, 0.09, visibility_pct=4.0), part_only=True)
-        tracker.update([hand], T0 + k, always)
-    after = tracker.victim(whole)
-    assert (after.north_m, after.east_m) == (before.north_m, before.east_m)
-    assert after.urgency is Urgency.LIGHT and after.last_seen_unix_s == T0 + 12
-    for k in range(13, 20):
-        hand = dataclasses.replace(obs(0.6, 0.0, k, 0.09, visibility_pct=4.0), part_only=True)
-        tracker.update([hand], T0 + k, always)
-    after = tracker.victim(whole)
-    assert (after.north_m, after.east_m) == (before.north_m, before.east_m)
-    assert after.urgency is Urgency.CRITICAL and after.last_seen_unix_s == T0 + 19
+
+    def lone_hand_seen(seconds: range) -> Victim:
+        for k in seconds:
+            hand = dataclasses.replace(obs(0.6, 0.0, k, 0.09, visibility_pct=4.0), part_only=True)
+            tracker.update([hand], T0 + k, always)
+        after = tracker.victim(whole)
+        assert (after.north_m, after.east_m) == (before.north_m, before.east_m)
+        assert after.last_seen_unix_s == T0 + seconds[-1]
+        return after
+
+    assert lone_hand_seen(range(10, 13)).urgency is Urgency.LIGHT  # 3 hands, 3 bodies
+    assert lone_hand_seen(range(13, 20)).urgency is Urgency.CRITICAL  # 10 hands
     assert len(tracker.victims()) == 1
     alone = VictimTracker(PARAMS)
     for k in range(5):
