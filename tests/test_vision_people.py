@@ -353,6 +353,45 @@ def test_a_lying_body_whose_joints_miss_the_floor_is_placed_by_its_near_edge() -
     assert np.hypot(*(placed - ankles)) > 1.0
 
 
+def test_a_mostly_hidden_body_is_placed_where_it_shows_not_beyond() -> None:
+    """A lying body along the view is placed beyond its near edge by half its length,
+    from its joints' span. A body mostly hidden (its head past the end of a slab
+    that hides the rest of it on the camera's side) may go on beyond what shows
+    towards the camera: where its heatmaps see at most half its main joints, or its
+    mask covers less than half of what a whole body would there, its joints are
+    guesses and it is placed by its near edge and half a body's width. The
+    simulator's head peeking past a slab was placed 1.5 m beyond itself so."""
+    from types import SimpleNamespace
+
+    from companion.vision.floorpoint import FloorParams, floor_pixel
+
+    geometry, *_ = _geometry()
+    params = FloorParams()
+    points = np.column_stack([np.full(33, 320.0), np.linspace(250.0, 300.0, 33)])
+    points[0] = (320.0, 250.0)  # nose far, ankles near: lying along the view
+    edge = geometry.plane_ne_m(np.array([[320.5, 300.5]]), params.contact_height_m)[0]
+
+    def placed(seen_share: float, mask_px: float) -> tuple[float, float, float]:
+        mask = np.zeros((480, 640), bool)
+        half_w = max(1, round(mask_px / 51 / 2))
+        mask[250:301, 320 - half_w : 320 + half_w] = True  # near edge: row 300
+        body = SimpleNamespace(
+            mask=mask, points=points, seen=np.ones(33), hip_px=points[24],
+            box=(320.0 - half_w, 250.0, 320.0 + half_w, 301.0), part="",
+            seen_share=seen_share,
+        )  # fmt: skip
+        u, v, heading = floor_pixel(body, geometry, params, 640, 480)
+        assert heading == pytest.approx(0.0, abs=0.05)  # feet to head: north, away
+        return float(geometry.floor_ne_m(np.array([[u, v]]))[0, 0] - edge[0]), u, v
+
+    beyond, u, v = placed(1.0, 20000.0)
+    whole = geometry.expected_body_area_px(u, v, 0.0)
+    assert whole is not None and 0.5 * whole < 20000.0
+    assert beyond > 0.6  # seen whole: half its length beyond its near edge
+    assert 0.1 < placed(0.3, 20000.0)[0] < 0.3  # the heatmaps see few of its joints
+    assert 0.1 < placed(1.0, 0.1 * whole)[0] < 0.3  # a tenth of a body shows
+
+
 def _sim_frame(preset_name: str, t_s: float, north_m: float, east_m: float, yaw_rad: float):  # type: ignore[no-untyped-def]
     from scenarios.motion import TruePose
     from scenarios.render import Renderer

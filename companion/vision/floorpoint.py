@@ -11,7 +11,11 @@ range / 0.3 centimetres, so the point comes from where the body meets the floor:
   joints taken to a plane ``joint_height_m`` above the floor. Where fewer than half
   its joints meet that plane in view (the frame cuts the body, or the pose's
   attitude puts it above the horizon), the joints tell neither its extent nor its
-  axis: the near edge and half a body's width;
+  axis: the near edge and half a body's width. So too where the body is mostly
+  hidden (the heatmaps see at most half its main joints, or its mask covers less
+  than half of what a whole lying adult would there): the rest of it may go on
+  beyond what shows on any side, towards the camera too (under a slab, behind a
+  wall), and the joints there are the model's guesses;
 - a standing body (its nose more than ``standing_height_m`` above its ankles at the
   ankles' range): its ankles;
 - a lone hand or face: where its box meets the floor;
@@ -46,6 +50,13 @@ class FloorParams:
     joint_span_m: float = 1.45  # nose to ankles of a lying adult
     landmark_seen: float = 0.5  # a landmark counts as in sight from this visibility
     standing_height_m: float = 1.0  # nose this far above the ankles: standing
+    # The joints' span tells a lying body's extent beyond its near edge only when most
+    # of the body is seen: the heatmaps see more than this share of its main joints
+    # (the rest are the model's guesses) ...
+    extent_min_seen_share: float = 0.5
+    # ... and its mask covers at least this share of the area a whole lying adult
+    # would cover there.
+    extent_min_visible: float = 0.5
 
 
 class BodyLike(Protocol):
@@ -57,6 +68,7 @@ class BodyLike(Protocol):
     hip_px: np.ndarray  # (2,) hip centre
     box: tuple[float, float, float, float]  # x0, y0, x1, y1
     part: str  # "face" / "hand" for a lone part
+    seen_share: float | None  # share of its main joints the heatmaps see (seenparts.py)
 
 
 def floor_pixel(
@@ -82,7 +94,12 @@ def floor_pixel(
             enough = len(finite) >= N_BODY_POINTS // 2
             if enough:
                 heading = _heading(b, joints, p)
-            centre = _from_contact(b, geometry, finite if enough else None, h, p)
+            # A body mostly hidden (under debris, behind a wall) may go on beyond what
+            # shows on any side, towards the camera too: it is placed where it shows.
+            seen = enough and (b.seen_share is None or b.seen_share > p.extent_min_seen_share)
+            centre = _from_contact(b, geometry, finite if seen else None, h, p)
+            if seen and _mostly_hidden(b, geometry, centre, heading, p):
+                centre = _from_contact(b, geometry, None, h, p)
             if not np.all(np.isfinite(centre)) and enough:
                 centre = finite.mean(axis=0)
         else:
@@ -118,6 +135,20 @@ def _heading(b: BodyLike, joints_ne: np.ndarray, p: FloorParams) -> float | None
         if float(np.hypot(*d_ne)) > 1e-3:
             return math.atan2(float(d_ne[1]), float(d_ne[0]))
     return None
+
+
+def _mostly_hidden(
+    b: BodyLike, geometry: FrameGeometry, centre: np.ndarray, heading: float | None, p: FloorParams
+) -> bool:
+    """Whether the body's mask covers less than ``extent_min_visible`` of the area a
+    whole lying adult centred at ``centre`` would cover in the frame."""
+    if not np.all(np.isfinite(centre)):
+        return False
+    px = geometry.pixels_of_floor(centre.reshape(1, 2))
+    if px is None or not np.all(np.isfinite(px[0])):
+        return False
+    expected = geometry.expected_body_area_px(float(px[0, 0]), float(px[0, 1]), heading)
+    return expected is not None and float(b.mask.sum()) < p.extent_min_visible * expected
 
 
 def _standing(points: np.ndarray, geometry: FrameGeometry, p: FloorParams) -> bool:
