@@ -1,6 +1,8 @@
 """A mission map PNG: the route, and victims coloured by urgency with their
 uncertainty ellipses (2 sigma), north up, east right, a 1 m grid, a legend; for a
-simulated mission also the debris and the true victims, labelled."""
+simulated mission also the debris and the true victims, labelled, each joined to
+the centre of its uncovered part where that lies apart from the body's centre (a
+buried victim is found, and scored, where it shows)."""
 
 from __future__ import annotations
 
@@ -63,6 +65,17 @@ class MapTruth:
     urgency: Urgency
     north_m: float
     east_m: float
+    visible_ne_m: tuple[float, float] | None = None  # centre of its uncovered part
+
+
+_VISIBLE_APART_M = 0.2  # a visible part nearer the body's centre than this is not drawn
+
+
+def _visible_apart(t: MapTruth) -> tuple[float, float] | None:
+    if t.visible_ne_m is None or not all(map(math.isfinite, t.visible_ne_m)):
+        return None
+    apart = math.hypot(t.visible_ne_m[0] - t.north_m, t.visible_ne_m[1] - t.east_m)
+    return t.visible_ne_m if apart >= _VISIBLE_APART_M else None
 
 
 def draw_mission_map(
@@ -134,12 +147,18 @@ def draw_mission_map(
         cv2.ellipse(img, centre, axes, angle, 0, 360, colour, 2, cv2.LINE_AA)
         cv2.circle(img, centre, 7, colour, -1 if v.confirmed else 2, cv2.LINE_AA)
         labels.append((f"{v.label} {v.urgency.name} {v.visibility_pct:.0f}%", centre))
+    for t in truth:  # over the reports: a report on an uncovered part still shows it
+        if (shows := _visible_apart(t)) is not None:
+            seen_at = px(*shows)
+            cv2.line(img, px(t.north_m, t.east_m), seen_at, (0, 0, 0), 1, cv2.LINE_AA)
+            cv2.circle(img, seen_at, 5, (0, 0, 0), 2, cv2.LINE_AA)
     # Labels last, over everything, each where it hides no marker and no other label.
     markers = [at for _text, at in labels]
     for text, (x, y), _at in place_labels(labels, markers, (0, 0, right_px, img.shape[0])):
         cv2.putText(img, text, (x, y), _FONT, 0.5, (250, 250, 250), 4, cv2.LINE_AA)  # halo
         cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
-    _legend(img, right_px + 20, bool(truth), bool(debris_ne_m))
+    parts = any(_visible_apart(t) is not None for t in truth)
+    _legend(img, right_px + 20, bool(truth), parts, bool(debris_ne_m))
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
     cv2.putText(img, "1 m", (20, img.shape[0] - 28), _FONT, 0.45, (0, 0, 0), 1)
@@ -209,7 +228,7 @@ def _overlap(a: Rect, b: Rect) -> int:
     return max(0, min(a[2], b[2]) - max(a[0], b[0])) * max(0, min(a[3], b[3]) - max(a[1], b[1]))
 
 
-def _legend(img: np.ndarray, x: int, truth: bool, debris: bool) -> None:
+def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool) -> None:
     y = 30
     cv2.putText(img, "Legend", (x, y), _FONT, 0.55, _TEXT_BGR, 2, cv2.LINE_AA)
     for urgency, colour in URGENCY_BGR.items():
@@ -226,6 +245,10 @@ def _legend(img: np.ndarray, x: int, truth: bool, debris: bool) -> None:
         y += 26
         cv2.drawMarker(img, (x + 8, y - 5), (0, 0, 0), cv2.MARKER_TILTED_CROSS, 14, 2)
         cv2.putText(img, "true victim (sim)", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    if parts:
+        y += 26
+        cv2.circle(img, (x + 8, y - 5), 5, (0, 0, 0), 2, cv2.LINE_AA)
+        cv2.putText(img, "its uncovered part", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
     if debris:
         y += 26
         cv2.rectangle(img, (x, y - 12), (x + 16, y + 2), _DEBRIS_BGR, -1)

@@ -406,7 +406,16 @@ def _summarise(
             )
             for v in victims
         ],
-        [MapTruth(f"T{v.victim_id}", v.urgency, v.north_m, v.east_m) for v in world.victims],
+        [
+            MapTruth(
+                f"T{v.victim_id}",
+                v.urgency,
+                v.north_m,
+                v.east_m,
+                (v.visible_north_m, v.visible_east_m),
+            )
+            for v in world.victims
+        ],
         [d.polygon for d in world.debris],
         (0.0, world.size_m[0], 0.0, world.size_m[1]),
     )
