@@ -67,7 +67,7 @@ def _score(
 ) -> tuple[ScoreResult, list[ReportedVictim]]:
     """The victims the companion holds at the end (each ID's last report, merged and
     false-alarm IDs left out) against the world's people, as the demo scores them;
-    and the reported victims no person was matched to (false victims, duplicates)."""
+    and those reported victims."""
     last: dict[int, Any] = {}
     for _, m in messages:
         if m.get_type() != "RESCUE_VICTIM_REPORT":
@@ -81,9 +81,20 @@ def _score(
         for r in reports
         if r.state not in gone
     ]
-    scored = score(truth_of_world(world), reported)
-    matched = {m.reported_id for m in scored.matches}
-    return scored, [r for r in reported if r.victim_id not in matched]
+    return score(truth_of_world(world), reported), reported
+
+
+def _found(world: World, scored: ScoreResult, reported: list[ReportedVictim]) -> str:
+    """Each person found: its true ID, the urgency reported (and the true one where
+    they differ) and the error."""
+    urgency = {r.victim_id: r.urgency for r in reported}
+    truth = {v.victim_id: v.urgency for v in truth_of_world(world).victims}
+    out = []
+    for m in sorted(scored.matches, key=lambda m: m.true_id):
+        said = urgency[m.reported_id].name
+        wrong = "" if m.urgency_ok else f" (is {truth[m.true_id].name})"
+        out.append(f"T{m.true_id}: {said}{wrong}, {m.error_m:.2f} m")
+    return "; ".join(out) or "none"
 
 
 def run(mission_s: float = MISSION_S) -> dict[str, object]:
@@ -135,7 +146,9 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
         if len(half) > 2
         else 0.0
     )
-    scored, unmatched = _score(world, messages)
+    scored, reported = _score(world, messages)
+    matched = {m.reported_id for m in scored.matches}
+    unmatched = [r for r in reported if r.victim_id not in matched]
     errors = sorted(m.error_m for m in scored.matches)
     return {
         "mission length, s": round(mission_s),
@@ -149,6 +162,7 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
         or "none",
         "median error of the found, m": round(statistics.median(errors), 3) if errors else "n/a",
         "urgency right, of the found": sum(m.urgency_ok for m in scored.matches),
+        "each found (true ID: urgency reported, error)": _found(world, scored, reported),
         "capture-to-wire latency median, ms": round(1000 * statistics.median(latencies), 1)
         if latencies
         else "n/a",
