@@ -91,9 +91,9 @@ def _found(world: World, scored: ScoreResult, reported: list[ReportedVictim]) ->
     truth = {v.victim_id: v.urgency for v in truth_of_world(world).victims}
     out = []
     for m in sorted(scored.matches, key=lambda m: m.true_id):
-        said = urgency[m.reported_id].name
-        wrong = "" if m.urgency_ok else f" (is {truth[m.true_id].name})"
-        out.append(f"T{m.true_id}: {said}{wrong}, {m.error_m:.2f} m")
+        said, true = urgency[m.reported_id], truth[m.true_id]
+        wrong = "" if said is true else f" (is {true.name})"
+        out.append(f"T{m.true_id}: {said.name}{wrong}, {m.error_m:.2f} m")
     return "; ".join(out) or "none"
 
 

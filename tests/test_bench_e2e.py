@@ -3,9 +3,10 @@ each victim ID's latest report, not its first, and not an ID merged away."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
-from bench.e2e import _score
+from bench.e2e import _found, _score
 from fusion.types import TrackState, Urgency, VictimReport
 from mavlink_io.convert import victim_report_to_msg
 from scenarios.world import preset
@@ -42,10 +43,16 @@ def test_the_latest_report_of_each_id_is_scored_and_merged_ids_are_not() -> None
         # ID 3 lies where no one lies: a false victim.
         (2.0, _msg(3, 4, 0.5, 0.5, TrackState.CONFIRMED)),
     ]
-    scored, unmatched = _score(world, messages)
+    scored, reported = _score(world, messages)
+    assert sorted(r.victim_id for r in reported) == [1, 3]  # ID 2 was merged away
     assert [m.true_id for m in scored.matches] == [t1.victim_id]
     assert scored.matches[0].error_m < 0.15  # where ID 1 ended, not its first report
     assert scored.false_victims == 1
-    assert [(r.victim_id, r.north_m, r.east_m) for r in unmatched] == [(3, 0.5, 0.5)]
+    # The bench names each person found, and the true urgency where it was wrong.
+    assert t1.urgency is Urgency.LIGHT
+    error = f"{scored.matches[0].error_m:.2f} m"
+    assert _found(world, scored, reported) == f"T{t1.victim_id}: LIGHT, {error}"
+    wrong = [dataclasses.replace(r, urgency=Urgency.MEDIUM) for r in reported]
+    assert _found(world, scored, wrong) == f"T{t1.victim_id}: MEDIUM (is LIGHT), {error}"
     assert sum(scored.duplicates.values()) == 0
     assert scored.true_victims == len(world.victims)
