@@ -145,8 +145,14 @@ class Detection:
     # (the person models' joint heatmaps: a mask fills in a covered body). It caps
     # the visible share the mask gives; None: the mask alone.
     seen_share_max: float | None = None
+    # Where a whole body with the joints seen would lie (the pixel of its floor
+    # centre), for the floor's size prior, when the body is placed elsewhere (a mostly
+    # hidden body is placed where it shows); None: at (u_px, v_px).
+    whole_uv_px: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.whole_uv_px is not None and not all(map(math.isfinite, self.whole_uv_px)):
+            raise ValueError(f"Detection.whole_uv_px must be finite, got {self.whole_uv_px}")
         if self.seen_share_max is not None and not 0.0 <= self.seen_share_max <= 1.0:
             raise ValueError(
                 f"Detection.seen_share_max must be in [0, 1], got {self.seen_share_max}"

@@ -82,6 +82,8 @@ def test_detection_needs_a_box_and_a_score_in_range() -> None:
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match="seen_share_max"):
             Detection(0.0, 10, 10, (5, 5, 3, 4), 10.0, 0.5, seen_share_max=bad)
+    with pytest.raises(ValueError, match="whole_uv_px"):
+        Detection(0.0, 10, 10, (5, 5, 3, 4), 10.0, 0.5, whole_uv_px=(1.0, float("inf")))
 
 
 def test_observation_covariance_must_be_positive_definite() -> None:

@@ -342,9 +342,9 @@ def test_a_lying_body_whose_joints_miss_the_floor_is_placed_by_its_near_edge() -
     points[list(ANKLES)] = [(380.0, 200.0), (390.0, 200.0)]  # on the floor, far away
     body = SimpleNamespace(
         mask=mask, points=points, seen=np.ones(33), hip_px=np.array([320.0, 100.0]),
-        box=(250.0, 100.0, 391.0, 301.0), part="",
+        box=(250.0, 100.0, 391.0, 301.0), part="", seen_share=None,
     )  # fmt: skip
-    u, v, heading = floor_pixel(body, geometry, FloorParams(), 640, 480)
+    u, v, heading, _whole = floor_pixel(body, geometry, FloorParams(), 640, 480)
     placed = geometry.floor_ne_m(np.array([[u, v]]))[0]
     edge = geometry.plane_ne_m(np.array([[320.5, 300.5]]), FloorParams().contact_height_m)[0]
     ankles = geometry.floor_ne_m(points[list(ANKLES)]).mean(axis=0)
@@ -380,8 +380,11 @@ def test_a_mostly_hidden_body_is_placed_where_it_shows_not_beyond() -> None:
             box=(320.0 - half_w, 250.0, 320.0 + half_w, 301.0), part="",
             seen_share=seen_share,
         )  # fmt: skip
-        u, v, heading = floor_pixel(body, geometry, params, 640, 480)
+        u, v, heading, whole_uv = floor_pixel(body, geometry, params, 640, 480)
         assert heading == pytest.approx(0.0, abs=0.05)  # feet to head: north, away
+        # Its visibility is still judged against the whole body its joints describe.
+        at = geometry.floor_ne_m(np.array([whole_uv if whole_uv is not None else (u, v)]))
+        assert at[0, 0] - edge[0] > 0.6
         return float(geometry.floor_ne_m(np.array([[u, v]]))[0, 0] - edge[0]), u, v
 
     beyond, u, v = placed(1.0, 20000.0)

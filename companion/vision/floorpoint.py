@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
@@ -71,19 +71,28 @@ class BodyLike(Protocol):
     seen_share: float | None  # share of its main joints the heatmaps see (seenparts.py)
 
 
+class FloorPixel(NamedTuple):
+    u_px: float  # the pixel of the body's floor point
+    v_px: float
+    heading_rad: float | None  # NED yaw, feet to head, where its landmarks show it lying
+    # A mostly hidden body is placed where it shows; its visibility is still judged
+    # against the whole body its joints describe, centred here (None: at u, v).
+    whole_uv_px: tuple[float, float] | None = None
+
+
 def floor_pixel(
     b: BodyLike, geometry: FrameGeometry | None, p: FloorParams, w: int, h: int
-) -> tuple[float, float, float | None]:
+) -> FloorPixel:
     """The pixel of the body's floor point (see the module docstring), and the
-    body's heading (NED yaw, feet to head) where its landmarks show it lying."""
+    body's heading where its landmarks show it lying."""
     heading = None
     x0, _y0, x1, y1 = b.box
     if geometry is None:
         if b.points is not None:
             u = float(np.clip(b.points[:, 0].mean(), 0, w - 1))
-            return u, float(np.clip(y1 - 1, 0, h - 1)), None
-        return (x0 + x1) / 2, min(y1, h) - 0.5, None
-    centre = np.array([np.nan, np.nan])
+            return FloorPixel(u, float(np.clip(y1 - 1, 0, h - 1)), None)
+        return FloorPixel((x0 + x1) / 2, min(y1, h) - 0.5, None)
+    centre = whole = np.array([np.nan, np.nan])
     if b.points is not None:
         joints = geometry.plane_ne_m(b.points, p.joint_height_m)
         finite = joints[np.all(np.isfinite(joints), axis=1)]
@@ -94,12 +103,12 @@ def floor_pixel(
             enough = len(finite) >= N_BODY_POINTS // 2
             if enough:
                 heading = _heading(b, joints, p)
+            centre = _from_contact(b, geometry, finite if enough else None, h, p)
             # A body mostly hidden (under debris, behind a wall) may go on beyond what
             # shows on any side, towards the camera too: it is placed where it shows.
-            seen = enough and (b.seen_share is None or b.seen_share > p.extent_min_seen_share)
-            centre = _from_contact(b, geometry, finite if seen else None, h, p)
-            if seen and _mostly_hidden(b, geometry, centre, heading, p):
-                centre = _from_contact(b, geometry, None, h, p)
+            guessed = b.seen_share is not None and b.seen_share <= p.extent_min_seen_share
+            if enough and (guessed or _mostly_hidden(b, geometry, centre, heading, p)):
+                whole, centre = centre, _from_contact(b, geometry, None, h, p)
             if not np.all(np.isfinite(centre)) and enough:
                 centre = finite.mean(axis=0)
         else:
@@ -113,11 +122,20 @@ def floor_pixel(
         centre = _from_contact(b, geometry, None, h, p)
         if not np.all(np.isfinite(centre)):
             centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
-    if np.all(np.isfinite(centre)):
-        px = geometry.pixels_of_floor(centre.reshape(1, 2))
-        if px is not None and np.all(np.isfinite(px[0])):
-            return float(px[0, 0]), float(px[0, 1]), heading
-    return (x0 + x1) / 2, min(y1, h) - 0.5, heading
+    uv = _pixel(geometry, centre)
+    if uv is None:
+        return FloorPixel((x0 + x1) / 2, min(y1, h) - 0.5, heading)
+    return FloorPixel(uv[0], uv[1], heading, _pixel(geometry, whole))
+
+
+def _pixel(geometry: FrameGeometry, ne_m: np.ndarray) -> tuple[float, float] | None:
+    """The pixel of a floor point; None where it has none."""
+    if not np.all(np.isfinite(ne_m)):
+        return None
+    px = geometry.pixels_of_floor(ne_m.reshape(1, 2))
+    if px is None or not np.all(np.isfinite(px[0])):
+        return None
+    return float(px[0, 0]), float(px[0, 1])
 
 
 def _heading(b: BodyLike, joints_ne: np.ndarray, p: FloorParams) -> float | None:
@@ -142,12 +160,10 @@ def _mostly_hidden(
 ) -> bool:
     """Whether the body's mask covers less than ``extent_min_visible`` of the area a
     whole lying adult centred at ``centre`` would cover in the frame."""
-    if not np.all(np.isfinite(centre)):
+    uv = _pixel(geometry, centre)
+    if uv is None:
         return False
-    px = geometry.pixels_of_floor(centre.reshape(1, 2))
-    if px is None or not np.all(np.isfinite(px[0])):
-        return False
-    expected = geometry.expected_body_area_px(float(px[0, 0]), float(px[0, 1]), heading)
+    expected = geometry.expected_body_area_px(uv[0], uv[1], heading)
     return expected is not None and float(b.mask.sum()) < p.extent_min_visible * expected
 
 

@@ -562,7 +562,7 @@ class PeopleDetector:
         x1, y1 = min(float(w), b.box[2]), min(float(h), b.box[3])
         if x1 - x0 < 1.0 or y1 - y0 < 1.0:
             return None
-        u, v, heading = floor_pixel(b, geometry, self.params.floor, w, h)
+        u, v, heading, whole_uv = floor_pixel(b, geometry, self.params.floor, w, h)
         # No pixel of mask: a person fills about half of its box (as dnn/hog assume).
         visible = float(b.mask.sum()) if b.mask.any() else 0.5 * (x1 - x0) * (y1 - y0)
         seen = None if b.seen_share is None else max(b.seen_share, self.params.seen_share_floor)
@@ -583,4 +583,5 @@ class PeopleDetector:
             expected_area_px=self._own_extent_area(b),
             body_heading_rad=heading,
             seen_share_max=seen,
+            whole_uv_px=whole_uv,
         )

@@ -45,14 +45,16 @@ class Assessment:
 def assess(detection: Detection, geometry: FrameGeometry | None) -> Assessment | None:
     """Visibility and urgency of a detection; None where the geometry has no floor.
 
-    Without a geometry (a photo) the detector's own estimate of the whole body's
-    pixels is used (``Detection.expected_area_px``); None if it gave none."""
+    With a geometry, the pixels a whole lying adult would cover where the body lies
+    (at ``Detection.whole_uv_px`` where the detector placed a mostly hidden body
+    apart from the whole body its joints describe). Without one (a photo) the
+    detector's own estimate of the whole body's pixels is used
+    (``Detection.expected_area_px``); None if it gave none."""
     if geometry is None:
         expected: float | None = detection.expected_area_px
     else:
-        expected = geometry.expected_body_area_px(
-            detection.u_px, detection.v_px, detection.body_heading_rad
-        )
+        u, v = detection.whole_uv_px or (detection.u_px, detection.v_px)
+        expected = geometry.expected_body_area_px(u, v, detection.body_heading_rad)
     if expected is None or expected <= 0.0:
         return None
     pct = visibility_pct(detection.visible_area_px, expected)
