@@ -72,6 +72,8 @@ class BodyLike(Protocol):
 
 
 class FloorPixel(NamedTuple):
+    """Where a body lies, as a pixel of the floor, with what the joints tell of it."""
+
     u_px: float  # the pixel of the body's floor point
     v_px: float
     heading_rad: float | None  # NED yaw, feet to head, where its landmarks show it lying
