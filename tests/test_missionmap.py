@@ -42,19 +42,21 @@ def test_a_buried_true_victim_is_joined_to_its_uncovered_part(tmp_path) -> None:
     from companion.missionmap import MapTruth, draw_mission_map
     from fusion.types import Urgency
 
-    def dark_ring_at(visible_ne_m: tuple[float, float] | None) -> bool:
+    def draw(visible_ne_m: tuple[float, float] | None):  # type: ignore[no-untyped-def]
         path = tmp_path / "map.png"
         truth = [MapTruth("T1", Urgency.CRITICAL, 1.0, 1.0, visible_ne_m)]
         draw_mission_map(path, [], [], truth, extent_ne_m=(0.0, 4.0, 0.0, 4.0))
-        img = cv2.imread(str(path))
-        scale = (900 - 2 * 50) / 4.0
-        x, y = int(50 + 3.0 * scale), int(img.shape[0] - 50 - 3.0 * scale)  # (3, 3) m
-        grey = img.min(axis=2)
-        # A ring of radius 5 around (3, 3) m: dark east and north of it, where the
-        # line to the body's centre (to the south-west) does not run.
-        return bool(grey[y, x + 5] < 60 and grey[y - 5, x] < 60)
+        return cv2.imread(str(path))
 
-    assert dark_ring_at((3.0, 3.0))
-    assert not dark_ring_at(None)
-    assert not dark_ring_at((float("nan"), float("nan")))
-    assert not dark_ring_at((1.1, 1.0))  # beside the centre: the cross says it
+    img = draw((3.0, 3.0))
+    scale = (900 - 2 * 50) / 4.0
+    x, y = int(50 + 3.0 * scale), int(img.shape[0] - 50 - 3.0 * scale)  # (3, 3) m
+    grey = img.min(axis=2)
+    # A ring of radius 5 around (3, 3) m: dark east and north of it, where the line
+    # to the body's centre (to the south-west) does not run.
+    assert grey[y, x + 5] < 60 and grey[y - 5, x] < 60
+    plain = draw(None)
+    assert (plain != img).any()
+    # No part known, or one beside the centre (the cross says it): the plain map.
+    assert (draw((float("nan"), float("nan"))) == plain).all()
+    assert (draw((1.1, 1.0)) == plain).all()
