@@ -7,7 +7,7 @@ range / 0.3 centimetres, so the point comes from where the body meets the floor:
 - a lying body with landmarks: the lowest mask pixel of each column is where its
   near side meets the floor (``contact_height_m`` up); the footprint's centre lies
   beyond that near edge, along the view, by half the body's extent in that
-  direction (``_from_contact``). Where the frame cuts that edge, the mean of its
+  direction (``_near_edge``, ``_beyond_edge``). Where the frame cuts that edge, the mean of its
   joints taken to a plane ``joint_height_m`` above the floor. Where fewer than half
   its joints meet that plane in view (the frame cuts the body, or the pose's
   attitude puts it above the horizon), the joints tell neither its extent nor its
@@ -94,7 +94,8 @@ def floor_pixel(
             u = float(np.clip(b.points[:, 0].mean(), 0, w - 1))
             return FloorPixel(u, float(np.clip(y1 - 1, 0, h - 1)), None)
         return FloorPixel((x0 + x1) / 2, min(y1, h) - 0.5, None)
-    centre = whole = np.array([np.nan, np.nan])
+    centre = np.array([np.nan, np.nan])
+    whole_uv = None
     if b.points is not None:
         joints = geometry.plane_ne_m(b.points, p.joint_height_m)
         finite = joints[np.all(np.isfinite(joints), axis=1)]
@@ -105,12 +106,17 @@ def floor_pixel(
             enough = len(finite) >= N_BODY_POINTS // 2
             if enough:
                 heading = _heading(b, joints, p)
-            centre = _from_contact(b, geometry, finite if enough else None, h, p)
+            contact = _near_edge(b, geometry, h, p)
+            centre = _beyond_edge(contact, finite if enough else None, p)
             # A body mostly hidden (under debris, behind a wall) may go on beyond what
             # shows on any side, towards the camera too: it is placed where it shows.
             guessed = b.seen_share is not None and b.seen_share <= p.extent_min_seen_share
-            if enough and (guessed or _mostly_hidden(b, geometry, centre, heading, p)):
-                whole, centre = centre, _from_contact(b, geometry, None, h, p)
+            if enough:
+                whole_uv = _pixel(geometry, centre)
+                if guessed or _mostly_hidden(b, geometry, whole_uv, heading, p):
+                    centre = _beyond_edge(contact, None, p)
+                else:
+                    whole_uv = None  # placed as the whole body: no other reference
             if not np.all(np.isfinite(centre)) and enough:
                 centre = finite.mean(axis=0)
         else:
@@ -121,13 +127,13 @@ def floor_pixel(
     elif b.part:
         centre = geometry.floor_ne_m(np.array([[(x0 + x1) / 2, min(y1, h) - 0.5]]))[0]
     else:
-        centre = _from_contact(b, geometry, None, h, p)
+        centre = _beyond_edge(_near_edge(b, geometry, h, p), None, p)
         if not np.all(np.isfinite(centre)):
             centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
     uv = _pixel(geometry, centre)
     if uv is None:
         return FloorPixel((x0 + x1) / 2, min(y1, h) - 0.5, heading)
-    return FloorPixel(uv[0], uv[1], heading, _pixel(geometry, whole))
+    return FloorPixel(uv[0], uv[1], heading, whole_uv)
 
 
 def _pixel(geometry: FrameGeometry, ne_m: np.ndarray) -> tuple[float, float] | None:
@@ -158,11 +164,14 @@ def _heading(b: BodyLike, joints_ne: np.ndarray, p: FloorParams) -> float | None
 
 
 def _mostly_hidden(
-    b: BodyLike, geometry: FrameGeometry, centre: np.ndarray, heading: float | None, p: FloorParams
+    b: BodyLike,
+    geometry: FrameGeometry,
+    uv: tuple[float, float] | None,
+    heading: float | None,
+    p: FloorParams,
 ) -> bool:
     """Whether the body's mask covers less than ``extent_min_visible`` of the area a
-    whole lying adult centred at ``centre`` would cover in the frame."""
-    uv = _pixel(geometry, centre)
+    whole lying adult centred at pixel ``uv`` of the floor would cover in the frame."""
     if uv is None:
         return False
     expected = geometry.expected_body_area_px(uv[0], uv[1], heading)
@@ -182,41 +191,51 @@ def _standing(points: np.ndarray, geometry: FrameGeometry, p: FloorParams) -> bo
     return upright_m > p.standing_height_m
 
 
-def _from_contact(
-    b: BodyLike, geometry: FrameGeometry, joints_ne: np.ndarray | None, h: int, p: FloorParams
-) -> np.ndarray:
-    """The footprint's centre from where the body meets the floor.
+def _near_edge(
+    b: BodyLike, geometry: FrameGeometry, h: int, p: FloorParams
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the body meets the floor: its near edge and the unit view direction
+    there (both NE metres), or None when the mask's bottom is cut by the frame.
 
     From a low camera a joint's height above the floor is uncertain, and every
     centimetre of it moves a ray's floor point by range / camera height
     centimetres. The lowest mask pixel of each column is where the body's near
     side meets the floor (``contact_height_m`` up): exact whatever the body's
-    height. The centre lies beyond that near edge, along the view, by half the
-    body's extent in that direction (from its joints' footprint when known, else
-    half a lying body's width). NaN when the mask's bottom is cut by the frame.
+    height.
     """
     ys, xs = np.nonzero(b.mask)
     if len(xs) == 0:
-        return np.array([np.nan, np.nan])
+        return None
     bottom = np.full(int(xs.max()) + 1, -1)
     np.maximum.at(bottom, xs, ys)
     cols = np.nonzero(bottom >= 0)[0]
     rows = bottom[cols]
     keep = rows < h - 2  # a column running off the frame has no contact in view
     if keep.sum() < max(3, 0.5 * len(cols)):
-        return np.array([np.nan, np.nan])
+        return None
     pix = np.column_stack([cols[keep] + 0.5, rows[keep] + 0.5]).astype(np.float64)
     near = geometry.plane_ne_m(pix, p.contact_height_m)
     nearer = geometry.plane_ne_m(pix + np.array([0.0, 40.0]), p.contact_height_m)
     ok = np.all(np.isfinite(near), axis=1) & np.all(np.isfinite(nearer), axis=1)
     if ok.sum() < 3:
-        return np.array([np.nan, np.nan])
+        return None
     edge = np.median(near[ok], axis=0)
     view = np.median(near[ok] - nearer[ok], axis=0)
     norm = float(np.hypot(*view))
     if norm < 1e-6:
+        return None
+    return edge, view / norm
+
+
+def _beyond_edge(
+    contact: tuple[np.ndarray, np.ndarray] | None, joints_ne: np.ndarray | None, p: FloorParams
+) -> np.ndarray:
+    """The footprint's centre: beyond the near edge (``_near_edge``), along the
+    view, by half the body's extent in that direction (from its joints' footprint
+    when given, else half a lying body's width). NaN without a near edge."""
+    if contact is None:
         return np.array([np.nan, np.nan])
-    view /= norm
+    edge, view = contact
     if joints_ne is not None and len(joints_ne) >= 2:
         # Across the view the joints' footprint is true to scale (unlike along it);
         # a body of joint span S that spans A across the view spans sqrt(S^2 - A^2)
