@@ -88,7 +88,7 @@ def _found(world: World, scored: ScoreResult, reported: list[ReportedVictim]) ->
     """Each person found: its true ID, the urgency reported (and the true one where
     they differ) and the error."""
     urgency = {r.victim_id: r.urgency for r in reported}
-    truth = {v.victim_id: v.urgency for v in truth_of_world(world).victims}
+    truth = {v.victim_id: v.urgency for v in world.victims}
     out = []
     for m in sorted(scored.matches, key=lambda m: m.true_id):
         said, true = urgency[m.reported_id], truth[m.true_id]

@@ -147,18 +147,17 @@ def draw_mission_map(
         cv2.ellipse(img, centre, axes, angle, 0, 360, colour, 2, cv2.LINE_AA)
         cv2.circle(img, centre, 7, colour, -1 if v.confirmed else 2, cv2.LINE_AA)
         labels.append((f"{v.label} {v.urgency.name} {v.visibility_pct:.0f}%", centre))
-    for t in truth:  # over the reports: a report on an uncovered part still shows it
-        if (shows := _visible_apart(t)) is not None:
-            seen_at = px(*shows)
-            cv2.line(img, px(t.north_m, t.east_m), seen_at, (0, 0, 0), 1, cv2.LINE_AA)
-            cv2.circle(img, seen_at, 5, (0, 0, 0), 2, cv2.LINE_AA)
+    parts = [(t, shows) for t in truth if (shows := _visible_apart(t)) is not None]
+    for t, shows in parts:  # over the reports: a report on an uncovered part still shows it
+        seen_at = px(*shows)
+        cv2.line(img, px(t.north_m, t.east_m), seen_at, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.circle(img, seen_at, 5, (0, 0, 0), 2, cv2.LINE_AA)
     # Labels last, over everything, each where it hides no marker and no other label.
     markers = [at for _text, at in labels]
     for text, (x, y), _at in place_labels(labels, markers, (0, 0, right_px, img.shape[0])):
         cv2.putText(img, text, (x, y), _FONT, 0.5, (250, 250, 250), 4, cv2.LINE_AA)  # halo
         cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
-    parts = any(_visible_apart(t) is not None for t in truth)
-    _legend(img, right_px + 20, bool(truth), parts, bool(debris_ne_m))
+    _legend(img, right_px + 20, bool(truth), bool(parts), bool(debris_ne_m))
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
     cv2.putText(img, "1 m", (20, img.shape[0] - 28), _FONT, 0.45, (0, 0, 0), 1)
