@@ -125,8 +125,10 @@ class Pipeline:
         if assessment is None:
             self.counters.rejected["off the usable floor"] += 1
             return None
+        x, _y, w, _h = det.bbox_xywh_px
+        cut = "person" in det.cues and (x <= 1 or x + w >= frame.image.shape[1] - 1)
         try:
-            fix = geolocate(self.camera, pose, det.u_px, det.v_px, self._geo)
+            fix = geolocate(self.camera, pose, det.u_px, det.v_px, self._geo, cut)
         except GeolocationRejected as exc:
             self.counters.rejected[exc.reason.split(":")[0]] += 1
             return None

@@ -136,15 +136,31 @@ def _jacobians(
 
 
 def geolocate(
-    camera: CameraModel, pose: PoseSample, u_px: float, v_px: float, params: GeolocationParams
+    camera: CameraModel,
+    pose: PoseSample,
+    u_px: float,
+    v_px: float,
+    params: GeolocationParams,
+    cut_by_frame: bool = False,
 ) -> FloorFix:
-    """The floor point seen at pixel (u_px, v_px) from ``pose``, with its covariance."""
+    """The floor point seen at pixel (u_px, v_px) from ``pose``, with its covariance.
+
+    ``cut_by_frame``: the point is a body's, and the frame's left or right edge cuts
+    that body. Its centre may then lie beyond what shows, on the far side of the
+    frame's side plane, which holds the ray: the covariance grows across the ray (on
+    the floor) by ``params.frame_cut_sigma_m`` (1-sigma)."""
     point, range_m, j_px, j_att = _jacobians(camera, pose, u_px, v_px, params)
     s_px2 = params.pixel_sigma_px**2
     s_att2 = math.radians(params.attitude_sigma_deg) ** 2
     # C = s_px^2 J_px J_px^T + s_att^2 J_att J_att^T + s_pos^2 I
     cov = s_px2 * j_px @ j_px.T + s_att2 * j_att @ j_att.T
     cov += params.position_sigma_m**2 * np.eye(2)
+    if cut_by_frame:
+        r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+        centre, _r = camera.camera_pose_ned(_vehicle(pose), r_ned_body)
+        ray = point[:2] - centre[:2]
+        across = np.array([-ray[1], ray[0]]) / max(float(np.hypot(*ray)), 1e-12)
+        cov += params.frame_cut_sigma_m**2 * np.outer(across, across)
     cov = 0.5 * (cov + cov.T)
     if np.linalg.det(cov) <= 0.0:
         raise GeolocationRejected("degenerate covariance (all noise sigmas are zero?)")

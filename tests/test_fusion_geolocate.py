@@ -181,6 +181,26 @@ def test_covariance_grows_with_range_and_grazing() -> None:
     assert sigmas[0] >= PARAMS.position_sigma_m
 
 
+def test_a_body_cut_by_the_frame_edge_is_doubted_across_the_ray_only() -> None:
+    """The part of a body beyond the frame's side edge is unknown: its centre may lie
+    beyond the edge's plane, which holds the ray. Along the ray nothing changes."""
+    camera, pose = _camera(-12.0), _pose()
+    for u in (5.0, 634.0):  # at the left and the right edge
+        plain = geolocate(camera, pose, u, 330.0, PARAMS)
+        cut = geolocate(camera, pose, u, 330.0, PARAMS, cut_by_frame=True)
+        assert (cut.north_m, cut.east_m) == (plain.north_m, plain.east_m)
+        centre, _r = camera.camera_pose_ned(
+            np.array([pose.north_m, pose.east_m, pose.down_m]),
+            rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad),
+        )
+        ray = np.array([cut.north_m - centre[0], cut.east_m - centre[1]])
+        ray /= np.linalg.norm(ray)
+        across = np.array([-ray[1], ray[0]])
+        grown = np.array(cut.cov_ne_m2) - np.array(plain.cov_ne_m2)
+        assert across @ grown @ across == pytest.approx(PARAMS.frame_cut_sigma_m**2)
+        assert ray @ grown @ ray == pytest.approx(0.0, abs=1e-12)
+
+
 def test_rejects_rays_above_horizon_and_out_of_range() -> None:
     camera = _camera(-10.0)
     pose = _pose()

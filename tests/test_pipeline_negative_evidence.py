@@ -1,17 +1,24 @@
-"""Where the pipeline lets a miss count against a tentative track: only within
+"""What the pipeline makes of detections before the tracker.
+
+Where it lets a miss count against a tentative track: only within
 ``tracker.miss_max_range_m``. Farther, the person detector often misses a body in
 plain view, so three detections spread over a few seconds confirm a far body, while
-a near spot that the detector stops seeing dies."""
+a near spot that the detector stops seeing dies.
+
+A body cut by the frame's side edge is placed where it shows, with its doubt across
+the view widened (the rest of it is beyond the edge)."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from companion.config import Config
 from companion.pipeline import Pipeline
 from companion.reporting import ReportPolicy
 from companion.sources import Frame
 from companion.vision import FrameGeometry
+from fusion.geolocate import geolocate
 from fusion.pose import PoseHistory
 from fusion.registry import EventKind
 from fusion.tracker import VictimTracker
@@ -64,3 +71,43 @@ def _confirmed(range_m: float) -> bool:
 def test_misses_count_only_where_the_detector_would_see_a_body() -> None:
     assert not _confirmed(2.0)  # 15 misses at -0.2 end a track of one hit (0.85)
     assert _confirmed(5.0)  # no evidence against it: 3 hits (2.55) confirm it
+
+
+def test_a_body_cut_by_the_side_of_the_frame_is_doubted_where_the_rest_may_be() -> None:
+    config = Config()
+    camera = default_camera()
+    pose = PoseSample(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    geometry = FrameGeometry.from_pose(camera, pose, config.geolocation)
+    pixels = geometry.pixels_of_floor(np.array([[2.5, -0.9], [2.5, 0.0], [2.5, 0.9]]))
+    assert pixels is not None
+    (ul, vl), (uc, vc), (ur, vr) = ((float(u), float(v)) for u, v in pixels)
+
+    def det(u: float, v: float, box: tuple[int, int, int, int], cues: tuple[str, ...]) -> Detection:
+        return Detection(0.0, u, v, box, 900.0, 0.9, "scripted", cues=cues)
+
+    dets = [
+        det(ul, vl, (0, int(vl) - 30, int(ul) + 40, 30), ("landmarks", "person")),  # left edge
+        det(uc, vc, (int(uc) - 60, int(vc) - 30, 120, 30), ("landmarks", "person")),
+        det(ur, vr, (int(ur) - 40, int(vr) - 30, 640 - int(ur) + 40, 30), ("person",)),  # right
+        det(ul, vl, (0, int(vl) - 10, 20, 10), ("hand",)),  # a lone hand: no body beyond it
+    ]
+    pipeline = Pipeline(
+        config,
+        camera,
+        _Scripted([dets]),
+        VictimTracker(config.tracker),
+        ReportPolicy(1.0, 0.5, 1.0),
+    )
+    poses = PoseHistory(60.0)
+    poses.add(pose)
+    poses.add(PoseSample(0.1, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    frame = Frame(np.zeros((480, 640, 3), np.uint8), 0.05, 1_700_000_000.05, 0)
+    located = pipeline.process(frame, poses).located
+    assert len(located) == 4
+    for (d, o), cut in zip(located, (True, False, True, False), strict=True):
+        want = geolocate(camera, pose, d.u_px, d.v_px, config.geolocation, cut_by_frame=cut)
+        assert np.allclose(o.cov_ne_m2, want.cov_ne_m2)
+        assert (o.north_m, o.east_m) == pytest.approx((want.north_m, want.east_m))
+    cut_cov = np.array(located[0][1].cov_ne_m2)
+    plain = geolocate(camera, pose, ul, vl, config.geolocation)
+    assert np.linalg.det(cut_cov) > 2 * np.linalg.det(np.array(plain.cov_ne_m2))
