@@ -21,6 +21,14 @@ repeated to fill the mission.
 
 The mission lasts ``MISSION_S`` (10 minutes, as the issue asks); ``python -m
 bench.e2e SECONDS`` runs a shorter one by hand.
+
+Until 2026-11-27 the whole body T1 ended 0.50-0.54 m off here, though a 4-minute
+run placed it 0.07 m off. One pass of the route sees it cut by the frame's left
+edge, 0.8 m off across the ray. Those fixes made a ghost track. The ghost confirmed
+later as a second ID (counted in "victim IDs first reported") and merged into T1,
+moving it. A body cut by the frame's side edge now gets 0.3 m more doubt across the
+ray (docs/VISION.md, "Where the body lies"). The ghost still confirms and merges,
+but the whole views pull it back first.
 """
 
 from __future__ import annotations
