@@ -35,8 +35,9 @@ class GeolocationParams:
     pixel_sigma_px: float = 3.0  # 1-sigma of the detected floor-contact pixel
     attitude_sigma_deg: float = 1.0  # 1-sigma of roll/pitch/yaw
     position_sigma_m: float = 0.10  # 1-sigma of the vehicle's local position
-    # 1-sigma added along the image's rows for a body cut by the frame's left or right
-    # edge: the part beyond the edge is unknown, so its centre may lie that way. On a
+    # 1-sigma added across the ray (on the floor) for a body cut by the frame's left or
+    # right edge: the part beyond the edge is unknown, so its centre may lie that way,
+    # beyond the edge's plane, which holds the ray (fusion.geolocate). On a
     # recorded 10-minute e2e mission one pass saw the whole body `mixed` T1 cut by the
     # left edge on 12 frames, 0.8 m off, and the victim's reported position followed
     # it (mean error over the mission 0.32 m; with 0.3 m here 0.17 m, 2026-11-27).
