@@ -27,8 +27,9 @@ run placed it 0.07 m off. One pass of the route sees it cut by the frame's left
 edge, 0.8 m off across the ray. Those fixes made a ghost track. The ghost confirmed
 later as a second ID (counted in "victim IDs first reported") and merged into T1,
 moving it. A body cut by the frame's side edge now gets 0.3 m more doubt across the
-ray (docs/VISION.md, "Where the body lies"). The ghost still confirms and merges,
-but the whole views pull it back first.
+ray (docs/VISION.md, "Where the body lies"). Replayed from a recording of this
+mission, the ghost still confirms and merges, but the whole views pull it back
+first (T1's error averaged over the mission: 0.32 m before, 0.17 m after).
 """
 
 from __future__ import annotations
