@@ -73,8 +73,9 @@ this run: 17 of 24 found, 2 false victims, median error 0.127 m, urgency right f
 
 Also since 2026-11-27 the floor point of a body cut by the frame's left or right
 edge gets 0.3 m more doubt across the ray (``geolocation.frame_cut_sigma_m``): the
-rest of the body lies beyond the edge. Fixes of a cut body 0.8 m off no longer make
-a ghost track that later confirms, merges into the victim and drags its position.
+rest of the body lies beyond the edge. Fixes of a cut body 0.8 m off still make a
+ghost track, but the whole views now pull it back before it confirms and merges
+into the victim, so it no longer drags the victim's position.
 Replayed before this run: the same victims found, false victims and urgencies, the
 median error 0.115 m instead of 0.127 m.
 """
