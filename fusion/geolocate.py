@@ -116,8 +116,9 @@ def _perturbed(pose: PoseSample, u_px: float, v_px: float) -> tuple[FloatArray, 
 
 def _jacobians(
     camera: CameraModel, pose: PoseSample, u_px: float, v_px: float, params: GeolocationParams
-) -> tuple[FloatArray, float, FloatArray, FloatArray]:
-    """The floor point, its range, d(n, e)/d(u, v) and d(n, e)/d(roll, pitch, yaw)."""
+) -> tuple[FloatArray, float, FloatArray, FloatArray, FloatArray]:
+    """The floor point, its range, d(n, e)/d(u, v), d(n, e)/d(roll, pitch, yaw) and
+    the ray's direction (NED)."""
     if not (math.isfinite(u_px) and math.isfinite(v_px)):
         raise GeolocationRejected(f"pixel ({u_px!r}, {v_px!r}) is not finite")
     pixels, attitudes = _perturbed(pose, u_px, v_px)
@@ -132,7 +133,7 @@ def _jacobians(
     j_att = np.column_stack([ne[5] - ne[6], ne[7] - ne[8], ne[9] - ne[10]]) / (
         2.0 * _ANGLE_STEP_RAD
     )
-    return points[0], float(ranges[0]), j_px, j_att
+    return points[0], float(ranges[0]), j_px, j_att, dirs[0]
 
 
 def geolocate(
@@ -149,17 +150,14 @@ def geolocate(
     that body. Its centre may then lie beyond what shows, on the far side of the
     frame's side plane, which holds the ray: the covariance grows across the ray (on
     the floor) by ``params.frame_cut_sigma_m`` (1-sigma)."""
-    point, range_m, j_px, j_att = _jacobians(camera, pose, u_px, v_px, params)
+    point, range_m, j_px, j_att, ray = _jacobians(camera, pose, u_px, v_px, params)
     s_px2 = params.pixel_sigma_px**2
     s_att2 = math.radians(params.attitude_sigma_deg) ** 2
     # C = s_px^2 J_px J_px^T + s_att^2 J_att J_att^T + s_pos^2 I
     cov = s_px2 * j_px @ j_px.T + s_att2 * j_att @ j_att.T
     cov += params.position_sigma_m**2 * np.eye(2)
     if cut_by_frame:
-        r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
-        centre, _r = camera.camera_pose_ned(_vehicle(pose), r_ned_body)
-        ray = point[:2] - centre[:2]
-        across = np.array([-ray[1], ray[0]]) / max(float(np.hypot(*ray)), 1e-12)
+        across = np.array([-ray[1], ray[0]]) / max(float(np.hypot(ray[0], ray[1])), 1e-12)
         cov += params.frame_cut_sigma_m**2 * np.outer(across, across)
     cov = 0.5 * (cov + cov.T)
     if np.linalg.det(cov) <= 0.0:
@@ -173,7 +171,7 @@ def ground_sample_distance_m(
 ) -> float:
     """Metres of floor per pixel at (u_px, v_px): geometric mean of the floor lengths
     of one pixel step along u and one along v."""
-    _point, _range_m, j_px, _j_att = _jacobians(camera, pose, u_px, v_px, params)
+    _point, _range_m, j_px, _j_att, _ray = _jacobians(camera, pose, u_px, v_px, params)
     return math.sqrt(float(np.linalg.norm(j_px[:, 0]) * np.linalg.norm(j_px[:, 1])))
 
 
