@@ -78,15 +78,6 @@ ghost track, but the whole views now pull it back before it confirms and merges
 into the victim, so it no longer drags the victim's position.
 Replayed before this run: the same victims found, false victims and urgencies, the
 median error 0.115 m instead of 0.127 m.
-
-Since 2026-11-28 the joint heatmaps' threshold for the visibility cap follows the
-camera's height (-0.5 for the rover's camera 0.3 m up, -0.4 at table height, where
-the real frames were taken): the heatmaps peak lower from a camera looking along
-the floor (docs/VISION.md, "The camera's height"). Replayed before this run:
-``seed2``'s whole T3 reads LIGHT instead of MEDIUM, urgency right for 15 of 17;
-found, false victims and the median error unchanged. ``seed1`` T5 and
-``lawnmower`` T6, whole, still read MEDIUM; a lower threshold read them LIGHT but
-read half-buried victims LIGHT too.
 """
 
 from __future__ import annotations

@@ -17,16 +17,15 @@ Compare with the real burial benchmark (section burial): if the simulator were
 much easier than real images it would hide the detector's limits.
 
 Since 2026-11-27 a body's visible share is capped at the share of its main joints
-whose heatmaps see them (never below a quarter). The heatmaps peak lower the lower
-the camera: the same uncovered bodies give a median joint logit of +0.31 from a
-camera 1 m up, +0.14 from 0.75 m (uncovered real joints in the real frames, taken
-at about table height: +0.17) and -0.12 from the rover's 0.3 m. With the real
-frames' threshold (-0.4) more than a third of the uncovered views here read MEDIUM
-(urgency right at 100 %: 0.909 before the cap, 0.602 with it), while those at 20 %
-read right more often (0.27 before the cap, 0.711 with it). Since 2026-11-28 the
-threshold follows the camera's height (-0.5 at 0.3 m; companion/vision/people.py):
-before, 0.917 / 0.602 / 0.75 / 0.955 / 0.523 / 0.711 / 0.228 / 0 (recall and
-urgency right at 100, 50, 20 and 5 %).
+whose heatmaps see them (never below a quarter). From the rover's camera the
+simulator's whole bodies give the landmark model's heatmaps weak peaks on most
+joints (logits -0.5 to -1.2, as the covered joints of real people do; uncovered
+real joints peak at a median +0.17), so more than a third of the uncovered views
+read MEDIUM here (urgency right at 100 %: 0.909 before the cap), while those at
+20 % read right more often (0.27 before). That is the low view more than the
+bodies: the same uncovered bodies seen from 0.75 m up, about where the real frames
+were taken, give a median joint logit of +0.14, from 0.3 m -0.12 (docs/VISION.md,
+"The camera's height").
 """
 
 from __future__ import annotations

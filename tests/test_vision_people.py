@@ -302,27 +302,12 @@ def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> 
     mask[200:260, 100:400] = True
     body = _Body(
         0.9, {"person", "landmarks", "mask"}, mask.astype(np.uint8), mask, None,
-        np.array([250.0, 230.0]), (100.0, 200.0, 400.0, 260.0), cap_share=0.0,
+        np.array([250.0, 230.0]), (100.0, 200.0, 400.0, 260.0), seen_share=0.0,
     )  # fmt: skip
     det = detector._detection(body, None, 0.0, 640, 480)
     assert det is not None and det.seen_share_max == PeopleParams().seen_share_floor
     a = assess(det, None)
     assert a is not None and a.urgency is Urgency.MEDIUM
-
-
-def test_a_low_camera_counts_weaker_heatmaps_as_seen(detector: PeopleDetector) -> None:
-    """The joints' heatmaps peak lower from a camera looking along the floor: with a
-    geometry, the threshold of a seen joint follows the camera's height; a photo
-    (no geometry) and a camera at table height or higher keep the one chosen on the
-    real frames."""
-    p = detector.params
-    nowhere = (lambda u, v: None, lambda u, v: None)
-    assert detector._seen_min_logit(None) == p.seen_min_logit
-    assert detector._seen_min_logit(FrameGeometry(*nowhere)) == p.seen_min_logit
-    rover = FrameGeometry(*nowhere, camera_height_m=0.3)
-    assert detector._seen_min_logit(rover) == p.seen_min_logit_low < p.seen_min_logit
-    tall = FrameGeometry(*nowhere, camera_height_m=1.2)
-    assert detector._seen_min_logit(tall) == p.seen_min_logit
 
 
 def test_a_lone_face_is_critical_against_a_whole_body(detector: PeopleDetector) -> None:

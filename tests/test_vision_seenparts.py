@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from companion.vision.seenparts import MAIN_JOINTS, joint_evidence, min_logit_at_height, seen_share
+from companion.vision.seenparts import MAIN_JOINTS, joint_evidence, seen_share
 
 LEGS = (23, 24, 25, 26, 27, 28)  # hips, knees, ankles
 SEEN, COVERED = 2.0, -2.0
@@ -63,14 +63,3 @@ def test_joint_evidence_is_each_heatmaps_peak() -> None:
     ev = joint_evidence(heat, 33)
     assert ev.shape == (33,)
     assert ev[0] == pytest.approx(1.5) and ev[1:].max() == pytest.approx(-3.0)
-
-
-def test_the_seen_threshold_follows_the_camera_height() -> None:
-    """Lower where the camera looks along the floor, as the heatmaps peak lower there;
-    flat beyond the two calibrated heights."""
-    low, high = (0.3, -0.65), (0.75, -0.4)
-    assert min_logit_at_height(0.1, low, high) == -0.65
-    assert min_logit_at_height(0.3, low, high) == -0.65
-    assert min_logit_at_height(0.525, low, high) == pytest.approx(-0.525)
-    assert min_logit_at_height(0.75, low, high) == -0.4
-    assert min_logit_at_height(2.0, low, high) == -0.4

@@ -74,10 +74,8 @@ class FrameGeometry:
         plane_ne_m: PlaneMap | None = None,
         pixels_of_floor: PixelMap | None = None,
         area_along: Callable[[float, float, float], float | None] | None = None,
-        camera_height_m: float | None = None,
     ) -> None:
         self._mpp = metres_per_px
-        self.camera_height_m = camera_height_m  # the camera's height above the floor
         self._area = expected_body_area_px
         self._floor = floor_ne_m
         self._plane = plane_ne_m
@@ -210,25 +208,7 @@ class FrameGeometry:
         def floor(px: np.ndarray) -> np.ndarray:
             return plane(px, 0.0)
 
-        return cls(
-            mpp,
-            area,
-            floor,
-            plane,
-            _pixel_map(camera, pose, params),
-            area_along,
-            _camera_height_m(camera, pose, params),
-        )
-
-
-def _camera_height_m(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> float:
-    """The camera's height above the floor plane (fusion.geolocate's floor)."""
-    from fusion.camera import rotation_zyx
-
-    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
-    vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
-    centre, _r = camera.camera_pose_ned(vehicle, r_ned_body)
-    return float(pose.down_m + params.floor_down_m - centre[2])
+        return cls(mpp, area, floor, plane, _pixel_map(camera, pose, params), area_along)
 
 
 def _plane_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> PlaneMap:

@@ -106,23 +106,6 @@ class PeopleParams:
     # visible area, of a mask or a lone part, does. None: the mask alone.
     seen_min_logit: float | None = -0.4
     seen_share_floor: float = 0.25
-    # The heatmaps peak lower the lower the camera looks along the floor: the same
-    # simulated bodies, uncovered, give a median joint logit of +0.31 seen from a
-    # camera 1 m up, +0.14 from 0.75 m (the real frames' table height, where the
-    # uncovered real joints give +0.17 and ``seen_min_logit`` was chosen) and -0.12
-    # from the rover's 0.3 m (bench/sim_burial.py's views, 2026-11-27). With a frame
-    # geometry the cap's threshold follows the camera's height: ``seen_min_logit_low``
-    # at ``low_camera_m`` or lower, ``seen_min_logit`` at ``table_camera_m`` or
-    # higher, linear between; a photo without geometry keeps ``seen_min_logit``.
-    # -0.5 moves it by less than the logits moved (0.26): on the scenario suite -0.5,
-    # -0.55 and -0.65 each read 15 of 17 victims right (14 at -0.4), but below -0.5
-    # half-buried victims read LIGHT; at -0.5 the two left wrong are whole bodies read
-    # MEDIUM, the safe side. Where the body lies (floorpoint.py) keeps the share at
-    # ``seen_min_logit``: at the lower threshold more whole bodies were placed by their
-    # joints' span, and the suite's median error rose from 0.115 to 0.136 m.
-    seen_min_logit_low: float = -0.5
-    low_camera_m: float = 0.3
-    table_camera_m: float = 0.75
     max_bodies: int = 4  # landmark crops per frame (each ~10 ms on one core)
     # Extra detector passes, ~10 ms each. The person detector sees the whole frame at
     # 224 px and is trained on mostly upright people: a body lying across the view is
@@ -177,11 +160,8 @@ class _Body:
     part: str = ""  # "face" / "hand" for a lone part
     part_extent_px: float = 0.0  # the part's size, for a body's extent in a photo
     seen: np.ndarray | None = None  # (33,) each landmark's visibility, 0..1
-    # The share of the body in the frame its joint heatmaps see (seenparts.py), at
-    # the threshold of a camera at table height: where the body lies (floorpoint.py).
+    # The share of the body in the frame its joint heatmaps see (seenparts.py).
     seen_share: float | None = None
-    # The same at the threshold for this frame's camera height: its visibility's cap.
-    cap_share: float | None = None
 
 
 def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
@@ -376,7 +356,6 @@ class PeopleDetector:
         kp: np.ndarray,
         box: np.ndarray,
         judge_seen: bool = True,
-        min_logit: float | None = None,
     ) -> _Body:
         p = self.params
         hw = rgb.shape[:2]
@@ -385,7 +364,7 @@ class PeopleDetector:
         flag = float(out[1].reshape(-1)[0])
         region = rect.paste(np.ones((LANDMARK_PX, LANDMARK_PX), np.uint8), hw)
         cues = {"person"}
-        points = seen = share = cap_share = None
+        points = seen = share = None
         raw = out[0].reshape(-1, 5)[:N_BODY_POINTS]
         joints = rect.to_image(raw[:, :2], LANDMARK_PX)
         if flag >= p.landmark_min_flag:
@@ -397,13 +376,12 @@ class PeopleDetector:
             mask = lm_prob > p.mask_threshold
         else:
             mask = (seg() > p.mask_threshold) & (region > 0)
-        if p.seen_min_logit is not None and min_logit is not None and judge_seen:
+        if p.seen_min_logit is not None and judge_seen:
             # Also where the landmark model does not confirm a person in the crop: its
             # joints are then a guess, but its weak heatmaps still say it sees little
             # of a body there, and the segmentation's mask spreads over debris.
             evidence = seenparts.joint_evidence(out[3], N_BODY_POINTS)
             share = seenparts.seen_share(joints, evidence, (hw[1], hw[0]), p.seen_min_logit)
-            cap_share = seenparts.seen_share(joints, evidence, (hw[1], hw[0]), min_logit)
         if mask.any():
             cues.add("mask")
         x0, y0, x1, y1 = (float(b) for b in box)
@@ -427,7 +405,6 @@ class PeopleDetector:
             (x0, y0, x1, y1),
             seen=seen,
             seen_share=share,
-            cap_share=cap_share,
         )
 
     # -- fusion ---------------------------------------------------------------
@@ -444,7 +421,6 @@ class PeopleDetector:
         # The whole-frame segmentation only measures bodies without landmarks and lone
         # parts: run on first use (most frames need none of it: ~4 ms saved).
         seg = functools.cache(lambda: self._segmentation(rgb))
-        min_logit = self._seen_min_logit(geometry)
         bodies: list[_Body] = []
         for view in self._passes(geometry, w, h):
             for d, box, kp in self._persons(rgb, view):
@@ -457,7 +433,7 @@ class PeopleDetector:
                 # On a dark frame the heatmaps are weak on uncovered people too: of 19
                 # found on real frames at 12 % light, 4 read MEDIUM by their seen
                 # share, none by the mask alone (2026-11-27). There the mask decides.
-                body = self._body(rgb, seg, d.score, kp, box, not dark, min_logit)
+                body = self._body(rgb, seg, d.score, kp, box, judge_seen=not dark)
                 _add_body(bodies, body, p.same_body_overlap)
         parts = []
         turn = self._parts_turn
@@ -493,18 +469,6 @@ class PeopleDetector:
             if det is not None and det.score >= self.min_score:
                 out.append(det)
         return out
-
-    def _seen_min_logit(self, geometry: FrameGeometry | None) -> float | None:
-        """The heatmap logit a seen joint reaches, for this frame's camera height."""
-        p = self.params
-        if p.seen_min_logit is None:
-            return None
-        height = None if geometry is None else geometry.camera_height_m
-        if height is None:
-            return p.seen_min_logit
-        return seenparts.min_logit_at_height(
-            height, (p.low_camera_m, p.seen_min_logit_low), (p.table_camera_m, p.seen_min_logit)
-        )
 
     def _hand_flag(self, rgb: np.ndarray, box: np.ndarray, kp: np.ndarray) -> float:
         """The hand landmark model's "a hand is in this crop" (0-1) for a palm box and
@@ -601,7 +565,7 @@ class PeopleDetector:
         u, v, heading, whole_uv = floor_pixel(b, geometry, self.params.floor, w, h)
         # No pixel of mask: a person fills about half of its box (as dnn/hog assume).
         visible = float(b.mask.sum()) if b.mask.any() else 0.5 * (x1 - x0) * (y1 - y0)
-        seen = None if b.cap_share is None else max(b.cap_share, self.params.seen_share_floor)
+        seen = None if b.seen_share is None else max(b.seen_share, self.params.seen_share_floor)
         return Detection(
             t_mono_s=t_mono_s,
             u_px=u,

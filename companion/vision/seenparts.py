@@ -44,16 +44,3 @@ def seen_share(
     if not inside.any():
         return None
     return float(np.mean(evidence[joints][inside] >= min_logit))
-
-
-def min_logit_at_height(
-    camera_height_m: float, low: tuple[float, float], high: tuple[float, float]
-) -> float:
-    """The seen-joint threshold for a camera this high above the floor: ``low`` and
-    ``high`` are (height in m, threshold) pairs; linear between them, flat beyond."""
-    (h0, t0), (h1, t1) = low, high
-    if camera_height_m <= h0:
-        return t0
-    if camera_height_m >= h1:
-        return t1
-    return t0 + (t1 - t0) * (camera_height_m - h0) / (h1 - h0)
