@@ -29,7 +29,9 @@ from companion.vision.people import (
     POSE_SPEC,
     PeopleDetector,
     PeopleParams,
+    _add_body,
     _Body,
+    _box_overlap,
 )
 from fusion.camera import CameraModel
 from fusion.params import GeolocationParams
@@ -293,6 +295,38 @@ def test_the_seen_share_caps_what_the_mask_says() -> None:
     small = dataclasses.replace(capped, visible_area_px=30.0, seen_share_max=1.0)
     a = assess(small, None)
     assert a is not None and a.urgency is Urgency.CRITICAL
+
+
+def _lying(x0: int, x1: int, score: float, cues: set[str], box_x0: float) -> _Body:
+    """A body lying across rows 120-220 with its mask from x0 to x1; its landmarks'
+    box may reach out of the frame (``box_x0`` < 0)."""
+    mask = np.zeros((480, 640), bool)
+    mask[120:220, x0:x1] = True
+    pts = np.zeros((33, 2))
+    return _Body(
+        score, cues, mask.astype(np.uint8), mask, pts, np.array([(x0 + x1) / 2, 170.0]),
+        (box_x0, 105.0, float(x1), 235.0),
+    )  # fmt: skip
+
+
+def test_one_body_cut_by_the_frame_is_one_detection() -> None:
+    """A head at the frame's left edge, found by one pass with its landmarks' box
+    reaching far out of the frame, and the whole body found by another: the boxes
+    overlap by less than ``same_body_overlap`` but the masks are one body's, so one
+    body stays (the higher score, with the cues of both). Two people side by side,
+    with masks apart, stay two."""
+    same = PeopleParams().same_body_overlap
+    head = _lying(0, 100, 0.7, {"person", "landmarks", "mask", "face"}, box_x0=-230.0)
+    whole = _lying(0, 340, 0.9, {"person", "landmarks", "mask"}, box_x0=-2.0)
+    assert _box_overlap(head.box, whole.box) < same
+    bodies: list[_Body] = [head]
+    _add_body(bodies, whole, same)
+    assert bodies == [whole] and "face" in whole.cues
+    left = _lying(0, 300, 0.9, {"person", "landmarks", "mask"}, box_x0=0.0)
+    right = _lying(320, 640, 0.8, {"person", "landmarks", "mask"}, box_x0=320.0)
+    bodies = [left]
+    _add_body(bodies, right, same)
+    assert bodies == [left, right]
 
 
 def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> None:

@@ -181,12 +181,24 @@ def _box_overlap(
     return iw * ih / smaller if smaller > 0 else 0.0
 
 
+def _mask_overlap(a: np.ndarray, b: np.ndarray) -> float:
+    """The pixels two masks share over the smaller mask's pixels."""
+    smaller = min(int(a.sum()), int(b.sum()))
+    return float(np.logical_and(a, b).sum()) / smaller if smaller > 0 else 0.0
+
+
 def _add_body(bodies: list[_Body], new: _Body, same_overlap: float) -> None:
-    """Add ``new`` unless it is a body already found by another pass (boxes overlapping
-    by ``same_overlap`` of the smaller): then the one with landmarks, else the higher
-    score, stays, with the cues of both."""
+    """Add ``new`` unless it is a body already found by another pass (boxes or masks
+    overlapping by ``same_overlap`` of the smaller): then the one with landmarks,
+    else the higher score, stays, with the cues of both. The masks decide where a
+    body cut by the frame has its landmarks' box reach far out of it (a 10-minute
+    recorded mission: a head at the frame's edge, its box 56 % inside the whole
+    body's, its mask 96 %, made a second detection of one body)."""
     for i, b in enumerate(bodies):
-        if _box_overlap(b.box, new.box) < same_overlap:
+        if (
+            _box_overlap(b.box, new.box) < same_overlap
+            and _mask_overlap(b.mask, new.mask) < same_overlap
+        ):
             continue
         keep, drop = (
             (b, new)
