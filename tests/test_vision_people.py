@@ -321,12 +321,12 @@ def test_one_body_cut_by_the_frame_is_one_detection() -> None:
     assert _box_overlap(head.box, whole.box) < same
     bodies: list[_Body] = [head]
     _add_body(bodies, whole, same)
-    assert bodies == [whole] and "face" in whole.cues
+    assert len(bodies) == 1 and bodies[0] is whole and "face" in whole.cues
     left = _lying(0, 300, 0.9, {"person", "landmarks", "mask"}, box_x0=0.0)
     right = _lying(320, 640, 0.8, {"person", "landmarks", "mask"}, box_x0=320.0)
     bodies = [left]
     _add_body(bodies, right, same)
-    assert bodies == [left, right]
+    assert len(bodies) == 2 and bodies[0] is left and bodies[1] is right
 
 
 def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> None:
