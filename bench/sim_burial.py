@@ -24,8 +24,8 @@ real joints peak at a median +0.17), so more than a third of the uncovered views
 read MEDIUM here (urgency right at 100 %: 0.909 before the cap), while those at
 20 % read right more often (0.27 before). That is the low view more than the
 bodies: the same uncovered bodies seen from 0.75 m up, about where the real frames
-were taken, give a median joint logit of +0.14, from 0.3 m -0.12 (docs/VISION.md,
-"The camera's height").
+were taken, see 0.77 of their main joints (a median over the views), from 0.3 m
+0.62 (docs/VISION.md, "The camera's height").
 """
 
 from __future__ import annotations
