@@ -29,7 +29,10 @@ later as a second ID (counted in "victim IDs first reported") and merged into T1
 moving it. A body cut by the frame's side edge now gets 0.3 m more doubt across the
 ray (docs/VISION.md, "Where the body lies"). Replayed from a recording of this
 mission, the ghost still confirms and merges, but the whole views pull it back
-first (T1's error averaged over the mission: 0.32 m before, 0.17 m after).
+first (T1's error averaged over the mission: 0.32 m before, 0.17 m after). A live
+run on 2026-11-28, with a replay sharing the machine, again ended T1 0.53 m off and
+reported a second plank, at (8.73, 7.08), as a false victim: the live end state
+depends on which frames each pass sees, and one live run is one sample.
 """
 
 from __future__ import annotations
