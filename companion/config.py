@@ -166,6 +166,9 @@ class DetectorConfig:
     work_width_px: int = 320  # classic: frames are reduced to this width before detection
     body_silhouette_fill: float = 0.75  # lying adult's silhouette / its length x width rectangle
     model_dir: Path | None = None  # people: folder of the model files (None: the default one)
+    # people: the BlazePose landmark model, "full" or "lite" (faster, finds fewer buried
+    # people: docs/VISION.md "Which landmark model")
+    pose_landmarks: Literal["full", "lite"] = "full"
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_score <= 1.0:

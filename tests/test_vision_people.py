@@ -183,6 +183,21 @@ def test_people_under_real_debris_read_as_partly_visible(
     assert sum(u is right for u in level.urgencies) >= min_right_share * len(level.urgencies)
 
 
+def test_the_full_landmark_model_finds_more_buried_people_than_lite(shared_data: Path) -> None:
+    """Why full is the default (docs/VISION.md "Which landmark model"): with 95 % of
+    each person's box under real debris, full finds 12 of 24 and lite 9 (2026-11-28);
+    ``detector.pose_landmarks = "lite"`` still loads the lite model."""
+    root, gt = _falls(shared_data)
+    textures = [read_image(shared_data / "images" / "negatives" / n) for n in TEXTURES]
+    found = {}
+    for name in ("full", "lite"):
+        config = DetectorConfig(backend="people", enhance=False, pose_landmarks=name)
+        single = make_detector(config, single_images=True)
+        assert isinstance(single, PeopleDetector) and single.params.landmarks == name
+        found[name] = measure_level(single, root, gt, textures, 5).found
+    assert found["lite"] >= 7 and found["full"] >= found["lite"] + 2
+
+
 def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
     """Without the real data: images this test makes (flat, noise, a dark frame)."""
     rng = np.random.default_rng(3)

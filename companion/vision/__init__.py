@@ -52,6 +52,7 @@ def make_detector(config: DetectorConfig, single_images: bool = False) -> Detect
                 silhouette_fill=config.body_silhouette_fill,
                 extra_passes=99 if single_images else PeopleParams.extra_passes,
                 parts_take_turns=not single_images,
+                landmarks=config.pose_landmarks,
             ),
             enhancer,
             config.min_score,

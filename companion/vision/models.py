@@ -77,6 +77,14 @@ MODELS: dict[str, ModelFile] = {
             "BlazePose lite landmarks (256x256): 33 body points and a body mask",
         ),
         ModelFile(
+            "pose_landmark_full.tflite",
+            POSE,
+            "package/pose_landmark_full.tflite",
+            "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f",
+            None,
+            "BlazePose full landmarks (256x256): the same outputs, more accurate, ~1.4x the time",
+        ),
+        ModelFile(
             "selfie_segmentation_landscape.tflite",
             SELFIE,
             "package/selfie_segmentation_landscape.tflite",

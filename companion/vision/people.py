@@ -5,7 +5,7 @@ Models (companion/vision/models.py; all Apache-2.0, run on one CPU thread):
 
 - BlazePose person detector (224x224, letterboxed frame): finds a person by the
   head and upper body, and gives the hip centre and a body-scale point;
-- BlazePose lite landmarks (256x256, an oriented crop around each person): 33
+- BlazePose landmarks, full (or lite; 256x256, an oriented crop around each person): 33
   body points (all of them, visible or not) and a mask of the body's visible
   pixels; its pose flag says whether a person is really in the crop;
 - selfie segmentation (144x256, the whole frame): person pixels; it also paints
@@ -46,6 +46,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -105,6 +106,12 @@ class PeopleParams:
     # model fits badly has every joint weak on a body it sees whole); only a small
     # visible area, of a mask or a lone part, does. None: the mask alone.
     seen_min_logit: float | None = -0.4
+    # Which BlazePose landmark model: "full" (~14 ms a body on one core here) or
+    # "lite" (~10 ms), as MediaPipe's model_complexity 1 and 0. Same outputs. On the
+    # real burial benchmark (2026-11-28) full finds more buried people (at 50 / 5 %
+    # visible 20 / 12 of 24, lite 19 / 9) and reads more of them right (80 % covered:
+    # 16 of 16, lite 14 of 16); docs/VISION.md "Which landmark model".
+    landmarks: Literal["full", "lite"] = "full"
     seen_share_floor: float = 0.25
     max_bodies: int = 4  # landmark crops per frame (each ~10 ms on one core)
     # Extra detector passes, ~10 ms each. The person detector sees the whole frame at
@@ -246,7 +253,9 @@ class PeopleDetector:
         self.enhancer = enhancer
         self.min_score = min_score
         self._pose = Model(models.model_path("pose_detection.tflite", model_dir))
-        self._landmarks = Model(models.model_path("pose_landmark_lite.tflite", model_dir))
+        self._landmarks = Model(
+            models.model_path(f"pose_landmark_{self.params.landmarks}.tflite", model_dir)
+        )
         self._segment = Model(models.model_path("selfie_segmentation_landscape.tflite", model_dir))
         self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir))
         self._face = Model(models.model_path("face_detection_full_range.tflite", model_dir))
