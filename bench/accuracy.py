@@ -78,6 +78,19 @@ ghost track, but the whole views now pull it back before it confirms and merges
 into the victim, so it no longer drags the victim's position.
 Replayed before this run: the same victims found, false victims and urgencies, the
 median error 0.115 m instead of 0.127 m.
+
+Since 2026-11-28 the landmark model is BlazePose full instead of lite (it finds more
+buried real people: section burial). Replayed before this run: the same 17 of 24
+found, 3 false victims instead of 2 (``medium``'s plank is gone; the same plank in
+``light`` and a debris patch in ``wide_lens`` confirm instead), the urgency right
+for 15 of 17 instead of 14 (``seed2``'s and ``lawnmower``'s whole bodies now read
+LIGHT; ``medium``'s half-buried T1 now reads LIGHT), and a median error of 0.182 m
+instead of 0.115 m. The error is the tracker's, not the fixes': the fixes within
+1.5 m of a victim lie a median 0.50 m from its centre with full and 0.49 m with
+lite (418 and 417 fixes), but a few stray fixes late in a mission, after a
+victim's covariance has grown for a minute (``tracker.process_noise_m2_s``), move
+its final position by up to 0.7 m (``lawnmower`` T3: 0.16 m with lite's fixes,
+0.87 m with full's, from the same views and two more fixes).
 """
 
 from __future__ import annotations
