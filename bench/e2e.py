@@ -33,6 +33,10 @@ first (T1's error averaged over the mission: 0.32 m before, 0.17 m after). A liv
 run on 2026-11-28, with a replay sharing the machine, again ended T1 0.53 m off and
 reported a second plank, at (8.73, 7.08), as a false victim: the live end state
 depends on which frames each pass sees, and one live run is one sample.
+
+Since 2026-11-28 the landmark model is BlazePose full (lite before; ~4 ms more a
+body on one core, docs/VISION.md "Which landmark model"). The runs described above
+are lite's.
 """
 
 from __future__ import annotations

@@ -173,8 +173,9 @@ def test_people_under_real_debris_read_as_partly_visible(
     """bench/burial.py's levels: real frames, each person's box covered by real brick
     and gravel texture until ``visible_pct`` of it shows. The landmark mask fills in
     the covered body: by the mask alone 1 of the 16 people found at 20 % read MEDIUM
-    (2026-11-27); capped by the share of joints its heatmaps see, 14. Of the 24
-    uncovered people 20 stay LIGHT (24 by the mask alone)."""
+    (2026-11-27, lite landmark model); capped by the share of joints its heatmaps
+    see, 14 (full, the default since 2026-11-28: 16). Of the 24 uncovered people 20
+    stay LIGHT (24 by the mask alone)."""
     root, gt = _falls(shared_data)
     textures = [read_image(shared_data / "images" / "negatives" / n) for n in TEXTURES]
     single = make_detector(DetectorConfig(backend="people", enhance=False), single_images=True)
