@@ -106,14 +106,14 @@ class PeopleParams:
     # model fits badly has every joint weak on a body it sees whole); only a small
     # visible area, of a mask or a lone part, does. None: the mask alone.
     seen_min_logit: float | None = -0.4
+    seen_share_floor: float = 0.25
     # Which BlazePose landmark model: "full" (~14 ms a body on one core here) or
     # "lite" (~10 ms), as MediaPipe's model_complexity 1 and 0. Same outputs. On the
     # real burial benchmark (2026-11-28) full finds more buried people (at 50 / 5 %
     # visible 20 / 12 of 24, lite 19 / 9) and reads more of them right (80 % covered:
     # 16 of 16, lite 14 of 16); docs/VISION.md "Which landmark model".
     landmarks: Literal["full", "lite"] = "full"
-    seen_share_floor: float = 0.25
-    max_bodies: int = 4  # landmark crops per frame (each ~10 ms on one core)
+    max_bodies: int = 4  # landmark crops per frame (each ~14 ms on one core, lite ~10)
     # Extra detector passes, ~10 ms each. The person detector sees the whole frame at
     # 224 px and is trained on mostly upright people: a body lying across the view is
     # found more often in the frame turned by 90 degrees (clockwise, anticlockwise),
