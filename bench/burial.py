@@ -52,12 +52,12 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
 
-from companion.config import DetectorConfig
+from companion.config import DetectorConfig, PoseLandmarks
 from companion.detectcmd import read_image
 from companion.vision import Detector, DetectorUnavailable, make_detector
 from companion.vision.visibility import assess
@@ -166,7 +166,7 @@ def run() -> dict[str, object]:
     textures = [read_image(DATA / "negatives" / name) for name in TEXTURES]
     result: dict[str, Any] = {}
     # The default (the full landmark model), then the lite one beside it.
-    variants: tuple[tuple[str, Literal["full", "lite"]], ...] = (("", "full"), ("lite: ", "lite"))
+    variants: tuple[tuple[str, PoseLandmarks], ...] = (("", "full"), ("lite: ", "lite"))
     for prefix, landmarks in variants:
         try:
             detector = make_detector(

@@ -150,6 +150,10 @@ class CameraConfig:
             raise ValueError(f"stall_timeout_s = {self.stall_timeout_s}: must be >= 0 (0: never)")
 
 
+# The BlazePose landmark model the people detector loads (pose_landmark_<name>.tflite).
+PoseLandmarks = Literal["full", "lite"]
+
+
 @dataclass(frozen=True)
 class DetectorConfig:
     """Which detector runs, and its settings."""
@@ -168,7 +172,7 @@ class DetectorConfig:
     model_dir: Path | None = None  # people: folder of the model files (None: the default one)
     # people: the BlazePose landmark model, "full" or "lite" (faster, finds fewer buried
     # people: docs/VISION.md "Which landmark model")
-    pose_landmarks: Literal["full", "lite"] = "full"
+    pose_landmarks: PoseLandmarks = "full"
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_score <= 1.0:

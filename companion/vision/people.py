@@ -46,11 +46,11 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import cv2
 import numpy as np
 
+from companion.config import PoseLandmarks
 from companion.vision import models, seenparts, ssd
 from companion.vision.base import FrameGeometry
 from companion.vision.enhance import Enhancer
@@ -112,7 +112,7 @@ class PeopleParams:
     # real burial benchmark (2026-11-28) full finds more buried people (at 50 / 5 %
     # visible 20 / 12 of 24, lite 19 / 9) and reads more of them right (80 % covered:
     # 16 of 16, lite 14 of 16); docs/VISION.md "Which landmark model".
-    landmarks: Literal["full", "lite"] = "full"
+    landmarks: PoseLandmarks = "full"
     max_bodies: int = 4  # landmark crops per frame (each ~14 ms on one core, lite ~10)
     # Extra detector passes, ~10 ms each. The person detector sees the whole frame at
     # 224 px and is trained on mostly upright people: a body lying across the view is
