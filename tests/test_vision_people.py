@@ -17,6 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bench.burial import TEXTURES, measure_level
 from bench.real_images import hits_box
@@ -32,6 +34,7 @@ from companion.vision.people import (
     _add_body,
     _Body,
     _box_overlap,
+    _mask_overlap,
 )
 from fusion.camera import CameraModel
 from fusion.params import GeolocationParams
@@ -343,6 +346,36 @@ def test_one_body_cut_by_the_frame_is_one_detection() -> None:
     bodies = [left]
     _add_body(bodies, right, same)
     assert len(bodies) == 2 and bodies[0] is left and bodies[1] is right
+
+
+_BOX = st.tuples(
+    st.integers(-100, 700), st.integers(-100, 500), st.integers(1, 300), st.integers(1, 300)
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_BOX, _BOX, st.integers(0, 2**32 - 1))
+def test_masks_are_compared_inside_the_boxes_as_over_the_whole_frame(
+    box_a: tuple[int, int, int, int], box_b: tuple[int, int, int, int], seed: int
+) -> None:
+    """``_mask_overlap`` looks only where the two boxes meet (a body's box holds its
+    mask): the same share as comparing the whole frames, boxes out of the frame too."""
+    rng = np.random.default_rng(seed)
+
+    def body(box: tuple[int, int, int, int]) -> _Body:
+        x, y, w, h = box
+        mask = np.zeros((480, 640), bool)
+        inside = mask[max(0, y) : max(0, y + h), max(0, x) : max(0, x + w)]
+        inside[...] = rng.random(inside.shape) < 0.6
+        return _Body(
+            0.9, {"person"}, mask.astype(np.uint8), mask, None, np.zeros(2),
+            (x + 0.4, y + 0.3, x + w - 0.2, y + h - 0.7),
+        )  # fmt: skip
+
+    a, b = body(box_a), body(box_b)
+    smaller = min(int(a.mask.sum()), int(b.mask.sum()))
+    want = float((a.mask & b.mask).sum()) / smaller if smaller else 0.0
+    assert _mask_overlap(a, b) == pytest.approx(want)
 
 
 def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> None:
