@@ -156,7 +156,7 @@ class TrackRecord:
     visibility_pct: float
     merged_into: int | None
     body_hits: int = 0  # detections as a body
-    part_hits: int = 0  # detections as a lone hand or face only
+    part_hits: int = 0  # detections of a part only (a lone hand or face, a cut body)
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
 
 

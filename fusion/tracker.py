@@ -221,8 +221,9 @@ class VictimTracker:
     ) -> None:
         """The Kalman update of every matched track, in one batch (see kalman_update);
         results go back into each track's filter."""
-        # A lone part of a victim seen whole (its hand, 0.5-0.8 m from where the body
-        # lies) is support for it, not a fix of its position.
+        # A part of a victim seen whole (its lone hand, 0.5-0.8 m from where the body
+        # lies; the body cut by the frame's side) is support for it, not a fix of its
+        # position.
         pairs = [(i, j) for i, j in pairs if not _part_of_body(live[i], observations[j])]
         if not pairs:
             return
@@ -254,7 +255,7 @@ class VictimTracker:
         else:
             t.body_hits += 1
         if obs.part_only and t.part_hits <= t.body_hits:
-            return  # a lone hand says little of how much shows of a body seen as often
+            return  # a part says little of how much shows of a body seen as often
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
@@ -438,5 +439,6 @@ class VictimTracker:
 
 
 def _part_of_body(t: Track, obs: Observation) -> bool:
-    """A lone part (a hand, a face) matched to a victim already seen as a body."""
+    """A part of a body (a lone hand or face, a body cut by the frame's side)
+    matched to a victim already seen as a body."""
     return obs.part_only and t.body_hits > 0

@@ -199,8 +199,9 @@ class Observation:
     visibility_pct: float
     quality: float  # weight of this observation's visibility in [0, 1]
     range_m: float  # camera-to-point distance
-    # Only an exposed part was seen (a lone hand or face, no body): where the part
-    # is, and how much of a body it shows, but not where a body seen whole lies.
+    # Only a part of a body was seen: a lone exposed hand or face, or a body cut by
+    # the frame's left or right side. Where that part is, and how much of a body it
+    # shows, but not where a body seen whole lies.
     part_only: bool = False
 
     def __post_init__(self) -> None:
