@@ -140,7 +140,6 @@ class Pipeline:
             visibility_pct=assessment.visibility_pct,
             quality=det.score,
             range_m=fix.range_m,
-            # A body cut by the frame's side is a part of a body as much as a lone
-            # hand is: its centre and how much of it shows are beyond the frame.
-            part_only=cut or (bool(PARTS & set(det.cues)) and "person" not in det.cues),
+            part_only=bool(PARTS & set(det.cues)) and "person" not in det.cues,
+            cut_by_frame=cut,
         )

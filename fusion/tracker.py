@@ -221,9 +221,8 @@ class VictimTracker:
     ) -> None:
         """The Kalman update of every matched track, in one batch (see kalman_update);
         results go back into each track's filter."""
-        # A part of a victim seen whole (its lone hand, 0.5-0.8 m from where the body
-        # lies; the body cut by the frame's side) is support for it, not a fix of its
-        # position.
+        # A lone part of a victim seen whole (its hand, 0.5-0.8 m from where the body
+        # lies) is support for it, not a fix of its position.
         pairs = [(i, j) for i, j in pairs if not _part_of_body(live[i], observations[j])]
         if not pairs:
             return
@@ -250,12 +249,13 @@ class VictimTracker:
         if t.state == TrackState.NOT_SEEN_RECENTLY:
             t.state = TrackState.CONFIRMED
             events.append(TrackEvent(EventKind.SEEN_AGAIN, victim_of(t)))
-        if obs.part_only:
+        partial = _partial(obs)
+        if partial:
             t.part_hits += 1
         else:
             t.body_hits += 1
-        if obs.part_only and t.part_hits <= t.body_hits:
-            return  # a part says little of how much shows of a body seen as often
+        if partial and t.part_hits <= t.body_hits:
+            return  # a lone hand or a cut body says little of how much of a body shows
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
@@ -294,8 +294,8 @@ class VictimTracker:
             urgency=Urgency.from_visibility(obs.visibility_pct),
             visibility_pct=obs.visibility_pct,
             matched=True,
-            body_hits=0 if obs.part_only else 1,
-            part_hits=1 if obs.part_only else 0,
+            body_hits=0 if _partial(obs) else 1,
+            part_hits=1 if _partial(obs) else 0,
         )
         self._next_track_id += 1
         self._tracks[t.track_id] = t
@@ -439,6 +439,11 @@ class VictimTracker:
 
 
 def _part_of_body(t: Track, obs: Observation) -> bool:
-    """A part of a body (a lone hand or face, a body cut by the frame's side)
-    matched to a victim already seen as a body."""
+    """A lone part (a hand, a face) matched to a victim already seen as a body."""
     return obs.part_only and t.body_hits > 0
+
+
+def _partial(obs: Observation) -> bool:
+    """Only part of a body seen (a lone hand or face, a body cut by the frame's side):
+    its visible share counts only once the victim was seen in part more often than whole."""
+    return obs.part_only or obs.cut_by_frame

@@ -199,10 +199,13 @@ class Observation:
     visibility_pct: float
     quality: float  # weight of this observation's visibility in [0, 1]
     range_m: float  # camera-to-point distance
-    # Only a part of a body was seen: a lone exposed hand or face, or a body cut by
-    # the frame's left or right side. Where that part is, and how much of a body it
-    # shows, but not where a body seen whole lies.
+    # Only an exposed part was seen (a lone hand or face, no body): where the part
+    # is, and how much of a body it shows, but not where a body seen whole lies.
     part_only: bool = False
+    # A body that runs out of the frame's left or right side: its fix holds (the
+    # geolocation doubts it across the ray), but its visible share is measured on
+    # what is in the frame only, so it counts as a part's does (VictimTracker).
+    cut_by_frame: bool = False
 
     def __post_init__(self) -> None:
         _check_finite(
