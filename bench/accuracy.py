@@ -92,13 +92,11 @@ victim's covariance has grown for a minute (``tracker.process_noise_m2_s``), mov
 its final position by up to 0.7 m (``lawnmower`` T3: 0.16 m with lite's fixes,
 0.87 m with full's, from the same views and two more fixes).
 
-Since 2026-11-28 the visible share of a body cut by the frame's left or right side
-counts as a lone hand's does (companion/pipeline.py, fusion/tracker.py): only once
-the victim has been seen cut more often than whole; the share is of the part in the
-frame. Replayed before this run: the same 17 of 24 found, 3 false victims and
-positions (median error 0.182 m), urgency right for 16 of 17 instead of 15
-(``medium``'s half-buried T1 reads MEDIUM again, ``seed1``'s whole T5 LIGHT;
-``seed2``'s whole T3 now reads MEDIUM).
+Tried on 2026-11-28 and not kept: the visible share of a body cut by the frame's
+side counted as a lone hand's (only once the victim has been seen cut more often
+than whole). Replayed: urgency right for 16 of 17, the rest unchanged; but a whole
+body on a 25-s patrol then read MEDIUM (docs/VISION.md, "A body cut by the frame's
+side, tried and not kept"). This run is the code without it.
 """
 
 from __future__ import annotations

@@ -36,10 +36,7 @@ depends on which frames each pass sees, and one live run is one sample.
 
 Since 2026-11-28 the landmark model is BlazePose full (lite before; ~4 ms more a
 body on one core, docs/VISION.md "Which landmark model"). The runs described above
-are lite's. Since 2026-11-28, too, a body cut by the frame's side no longer sets its
-victim's visible share while the victim has been seen whole as often (its fix still
-counts; docs/VISION.md "A body cut by the frame's side"): replayed from the recorded
-mission, nothing changed.
+are lite's.
 """
 
 from __future__ import annotations

@@ -155,8 +155,8 @@ class TrackRecord:
     urgency: Urgency
     visibility_pct: float
     merged_into: int | None
-    body_hits: int = 0  # detections of a body whole in the frame
-    part_hits: int = 0  # detections of a part only (a lone hand or face, a cut body)
+    body_hits: int = 0  # detections as a body
+    part_hits: int = 0  # detections as a lone hand or face only
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
 
 

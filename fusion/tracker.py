@@ -249,13 +249,12 @@ class VictimTracker:
         if t.state == TrackState.NOT_SEEN_RECENTLY:
             t.state = TrackState.CONFIRMED
             events.append(TrackEvent(EventKind.SEEN_AGAIN, victim_of(t)))
-        partial = _partial(obs)
-        if partial:
+        if obs.part_only:
             t.part_hits += 1
         else:
             t.body_hits += 1
-        if partial and t.part_hits <= t.body_hits:
-            return  # a lone hand or a cut body says little of how much of a body shows
+        if obs.part_only and t.part_hits <= t.body_hits:
+            return  # a lone hand says little of how much shows of a body seen as often
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
         if self._reclassify(t) and t.state == TrackState.CONFIRMED:
             events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
@@ -294,8 +293,8 @@ class VictimTracker:
             urgency=Urgency.from_visibility(obs.visibility_pct),
             visibility_pct=obs.visibility_pct,
             matched=True,
-            body_hits=0 if _partial(obs) else 1,
-            part_hits=1 if _partial(obs) else 0,
+            body_hits=0 if obs.part_only else 1,
+            part_hits=1 if obs.part_only else 0,
         )
         self._next_track_id += 1
         self._tracks[t.track_id] = t
@@ -441,9 +440,3 @@ class VictimTracker:
 def _part_of_body(t: Track, obs: Observation) -> bool:
     """A lone part (a hand, a face) matched to a victim already seen as a body."""
     return obs.part_only and t.body_hits > 0
-
-
-def _partial(obs: Observation) -> bool:
-    """Only part of a body seen (a lone hand or face, a body cut by the frame's side):
-    its visible share counts only once the victim was seen in part more often than whole."""
-    return obs.part_only or obs.cut_by_frame

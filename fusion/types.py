@@ -202,10 +202,6 @@ class Observation:
     # Only an exposed part was seen (a lone hand or face, no body): where the part
     # is, and how much of a body it shows, but not where a body seen whole lies.
     part_only: bool = False
-    # A body that runs out of the frame's left or right side: its fix holds (the
-    # geolocation doubts it across the ray), but its visible share is measured on
-    # what is in the frame only, so it counts as a part's does (VictimTracker).
-    cut_by_frame: bool = False
 
     def __post_init__(self) -> None:
         _check_finite(

@@ -240,34 +240,6 @@ def test_a_lone_hand_of_a_victim_seen_whole_supports_it_but_does_not_move_it() -
     assert victim.urgency is Urgency.CRITICAL and victim.north_m == pytest.approx(3.0)
 
 
-def test_a_body_cut_by_the_frame_moves_a_victim_but_does_not_set_its_urgency() -> None:
-    """A body seen whole three times (80 % visible, LIGHT) and then cut by the frame's
-    side at 30 %: the cut views are fixes of where it lies (they pull it), but their
-    share is of the part in the frame, so they count only once it has been seen cut
-    more often than whole (the suite's ``medium`` T1, 42 % visible, read LIGHT from
-    views cut by the frame). A victim seen only cut is classed by its cut views."""
-    tracker = VictimTracker(PARAMS)
-    whole = confirmed_victim(tracker, 0.0, 0.0, 0.0)
-    before = tracker.victim(whole)
-
-    def cut_view(k: int, north_m: float) -> Observation:
-        return dataclasses.replace(obs(north_m, 0.0, k, visibility_pct=30.0), cut_by_frame=True)
-
-    for k in range(10, 14):
-        tracker.update([cut_view(k, 0.3)], T0 + k, always)
-    after = tracker.victim(whole)
-    assert after.north_m > before.north_m + 0.05
-    assert after.urgency is Urgency.LIGHT  # 4 cut views, 3 whole ones: 80 % counts
-    for k in range(14, 20):
-        tracker.update([cut_view(k, 0.3)], T0 + k, always)
-    assert tracker.victim(whole).urgency is Urgency.MEDIUM  # 10 cut views
-    alone = VictimTracker(PARAMS)
-    for k in range(5):
-        alone.update([cut_view(k, 3.0)], T0 + k, always)
-    [victim] = alone.victims()
-    assert victim.urgency is Urgency.MEDIUM and victim.north_m == pytest.approx(3.0)
-
-
 def test_a_merged_victim_keeps_having_been_seen_whole() -> None:
     """Two IDs of one victim merge: the survivor was seen as a body and as a lone
     part as often as both together (its lone hand then only supports it)."""
