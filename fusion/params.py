@@ -130,6 +130,11 @@ class TrackerParams:
     # says: a person (1.7 m long) and the fix error of a partly buried one at range
     # stay within it (2 m split one victim of the guard mission seed:2 in two).
     max_match_distance_m: float = 3.0
+    # A victim's reported position is the geometric median of the newest this many
+    # fixes its filter took (fusion.track): on the scenario suite 30, 60, 100 and 200
+    # gave the same median error (0.141-0.150 m); on a recorded 10-minute mission
+    # 0.05, 0.03, 0.03 and 0.04 m (2026-11-28).
+    position_fixes: int = 100
 
     def __post_init__(self) -> None:
         _all_finite(self)
@@ -159,6 +164,7 @@ class TrackerParams:
         )
         _require(self.max_unseen_growth_s >= 0.0, self, "max_unseen_growth_s", "must be >= 0")
         _require(self.max_match_distance_m > 0.0, self, "max_match_distance_m", "must be > 0")
+        _require(self.position_fixes >= 1, self, "position_fixes", "must be >= 1")
         _require(
             0.0 <= self.urgency_hysteresis_pct < 10.0,
             self,

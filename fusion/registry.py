@@ -124,12 +124,16 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "first_seen_unix_s", "last_seen_unix_s",
 #                "history": [[t_unix_s, visibility_pct, quality], ...],
 #                "urgency" (Urgency name), "visibility_pct", "merged_into": int | null,
-#                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...]}]}
+#                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...],
+#                "fixes": [[t_unix_s, north_m, east_m], ...]}]}
 #
 # "seen_with" was added to version 1 on 2026-11-27 (a snapshot written before reads as
 # []), and "body_seen": bool with it, which "body_hits" and "part_hits" (detections as
 # a body, and as a lone hand or face) replaced the same day: a snapshot with
-# "body_seen" reads as 1 and 0 hits when it is true, else as 0 and 0.
+# "body_seen" reads as 1 and 0 hits when it is true, else as 0 and 0. "fixes" (the
+# fixes whose median is the victim's position) was added on 2026-11-28; a snapshot
+# without it reads as none, and the track reports its filter's mean until it has
+# new ones.
 
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
 SNAPSHOT_VERSION = 1
@@ -158,6 +162,7 @@ class TrackRecord:
     body_hits: int = 0  # detections as a body
     part_hits: int = 0  # detections as a lone hand or face only
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
+    fixes: tuple[tuple[float, float, float], ...] = ()  # (t_unix_s, north_m, east_m)
 
 
 def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) -> dict[str, Any]:
@@ -185,6 +190,7 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "body_hits": r.body_hits,
                 "part_hits": r.part_hits,
                 "seen_with": list(r.seen_with),
+                "fixes": [list(f) for f in r.fixes],
             }
             for r in records
         ],
@@ -264,6 +270,13 @@ def _record(obj: Any, where: str) -> TrackRecord:
         isinstance(i, int) and not isinstance(i, bool) and i >= 1 for i in seen_with
     ):
         raise FusionError(f"snapshot{where}.seen_with: expected a list of track ids")
+    fixes_raw = obj.get("fixes", [])
+    if not isinstance(fixes_raw, list):
+        raise FusionError(f"snapshot{where}.fixes: expected a list")
+    fixes = tuple(
+        cast(tuple[float, float, float], _floats(f, 3, f"{where}.fixes[{i}]"))
+        for i, f in enumerate(fixes_raw)
+    )
     return TrackRecord(
         track_id=_int(obj, "track_id", where, 1),
         victim_id=victim_id,
@@ -284,6 +297,7 @@ def _record(obj: Any, where: str) -> TrackRecord:
         body_hits=body_hits,
         part_hits=part_hits,
         seen_with=tuple(sorted(set(seen_with))),
+        fixes=fixes,
     )
 
 

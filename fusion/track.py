@@ -1,6 +1,17 @@
 """One victim track's state, and the two forms it leaves the tracker in: the
 ``Victim`` snapshot the rest of the program reads and the ``TrackRecord`` the
-registry stores (``fusion.registry`` encodes and validates it)."""
+registry stores (``fusion.registry`` encodes and validates it).
+
+Where a victim lies, as reported, is the geometric median of the fixes its filter
+took (``Track.fixes``, the newest ``TrackerParams.position_fixes``; from
+``MIN_FIXES`` of them), not the filter's mean. The filter weighs each fix by its
+covariance and, through its random walk, the newest most; but a body's fixes stray
+more than their covariance says (the floor point of a body seen cut by the frame
+or from 1 m, end-on or half hidden, is 0.5 m off in the median, its covariance says
+0.13 m), and one stray fix after a minute out of view moved a victim 0.7 m. The
+filter's mean and covariance still decide which detections are the victim's
+(gating, merging). Measured on the scenario suite and a recorded 10-minute mission
+(docs/VISION.md, "Where a victim lies: the median of its fixes")."""
 
 from __future__ import annotations
 
@@ -11,6 +22,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 
 from fusion.camera import FloatArray
+from fusion.median import geometric_median
 from fusion.registry import TrackRecord, Victim
 from fusion.types import Cov2, TrackState, Urgency
 
@@ -37,10 +49,41 @@ class Track:
     # Detections of it as a body, and as a lone part (a hand, a face) only.
     body_hits: int = field(default=0, repr=False)
     part_hits: int = field(default=0, repr=False)
+    # The fixes the filter took, (t_unix_s, north_m, east_m), newest last and at most
+    # TrackerParams.position_fixes of them: the victim's position is their median.
+    fixes: deque[tuple[float, float, float]] = field(default_factory=deque, repr=False)
+    _position: FloatArray | None = field(default=None, init=False, repr=False)  # cached median
 
     @property
     def x(self) -> FloatArray:
+        """The filter's mean: what detections are gated against."""
         return self.kf.x.reshape(2)
+
+    def add_fix(self, t_unix_s: float, north_m: float, east_m: float) -> None:
+        self.fixes.append((t_unix_s, north_m, east_m))
+        self._position = None
+
+    def take_fixes(self, other: Track) -> None:
+        """Add ``other``'s fixes (a merge), keeping the newest."""
+        merged = sorted([*self.fixes, *other.fixes])
+        self.fixes = deque(merged, maxlen=self.fixes.maxlen)
+        self._position = None
+
+    @property
+    def position(self) -> FloatArray:
+        """Where the victim lies: the geometric median of its fixes, or the filter's
+        mean while it has fewer than MIN_FIXES (a restored track from before the
+        fixes were stored has none)."""
+        if len(self.fixes) < MIN_FIXES:
+            return self.x
+        if self._position is None:
+            self._position = geometric_median(np.array([f[1:] for f in self.fixes]))
+        return self._position
+
+
+# Fewer fixes than this: the filter's mean is the position (the median of two fixes
+# is anywhere between them).
+MIN_FIXES = 3
 
 
 def new_filter(x: FloatArray, p: FloatArray) -> KalmanFilter:
@@ -61,7 +104,7 @@ def _cov2(p: FloatArray) -> Cov2:
 
 def victim_of(t: Track) -> Victim:
     """The frozen snapshot of a track."""
-    x = t.x
+    x = t.position
     return Victim(
         victim_id=t.victim_id,
         state=t.state,
@@ -99,10 +142,11 @@ def record_of(t: Track) -> TrackRecord:
         body_hits=t.body_hits,
         part_hits=t.part_hits,
         seen_with=tuple(sorted(t.seen_with)),
+        fixes=tuple(t.fixes),
     )
 
 
-def track_of(rec: TrackRecord, urgency_window: int) -> Track:
+def track_of(rec: TrackRecord, urgency_window: int, position_fixes: int) -> Track:
     """The track a stored record continues (the record is already validated)."""
     return Track(
         track_id=rec.track_id,
@@ -121,4 +165,5 @@ def track_of(rec: TrackRecord, urgency_window: int) -> Track:
         seen_with=set(rec.seen_with),
         body_hits=rec.body_hits,
         part_hits=rec.part_hits,
+        fixes=deque(rec.fixes, maxlen=position_fixes),
     )

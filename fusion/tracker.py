@@ -15,6 +15,12 @@ broad enough to match everything. And no pair further apart than
 ``max_match_distance_m`` is ever associated, excluded or merged, whatever its
 chi-square: that is the metric bound on how far a person's fix strays from itself.
 
+Position: the filter's mean and covariance decide which detections are a victim's
+(steps 2, 3 and 6 below); where the victim is reported to lie is the geometric
+median of the newest ``position_fixes`` fixes its filter took (``fusion.track``):
+a body's fixes stray more than their covariance says, and the filter, which
+trusts it and weighs the newest fixes most, followed a few stray ones.
+
 Per ``update`` (one processed camera frame, with or without detections):
 
 1. predict every track to ``now_unix_s``;
@@ -232,9 +238,10 @@ class VictimTracker:
         z = np.array([(observations[j].north_m, observations[j].east_m) for j in oj])
         r = np.array([observations[j].cov_ne_m2 for j in oj])
         x_new, p_new = kalman_update(x, p[ti], z, r)
-        for k, i in enumerate(ti):
+        for k, (i, j) in enumerate(pairs):
             live[i].kf.x = x_new[k].reshape(2, 1)
             live[i].kf.P = p_new[k]
+            live[i].add_fix(observations[j].t_unix_s, float(z[k, 0]), float(z[k, 1]))
 
     def _hit(self, t: Track, obs: Observation, events: list[TrackEvent]) -> None:
         """Bookkeeping of a matched track (its filter is already updated)."""
@@ -295,6 +302,9 @@ class VictimTracker:
             matched=True,
             body_hits=0 if obs.part_only else 1,
             part_hits=1 if obs.part_only else 0,
+            fixes=deque(
+                [(obs.t_unix_s, obs.north_m, obs.east_m)], maxlen=self._params.position_fixes
+            ),
         )
         self._next_track_id += 1
         self._tracks[t.track_id] = t
@@ -384,6 +394,7 @@ class VictimTracker:
         older.log_odds = max(older.log_odds, younger.log_odds)
         older.body_hits += younger.body_hits
         older.part_hits += younger.part_hits
+        older.take_fixes(younger)
         for t in self._tracks.values():  # seen beside the younger ID: beside the victim
             if younger.track_id in t.seen_with:
                 t.seen_with.add(older.track_id)
@@ -429,7 +440,7 @@ class VictimTracker:
         tracker = cls(params, first_id=next_victim_id)
         tracker._next_track_id = next_track_id
         for rec in records:
-            t = track_of(rec, params.urgency_window)
+            t = track_of(rec, params.urgency_window, params.position_fixes)
             tracker._tracks[t.track_id] = t
             if t.victim_id:
                 tracker._by_victim[t.victim_id] = t

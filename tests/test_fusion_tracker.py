@@ -240,6 +240,60 @@ def test_a_lone_hand_of_a_victim_seen_whole_supports_it_but_does_not_move_it() -
     assert victim.urgency is Urgency.CRITICAL and victim.north_m == pytest.approx(3.0)
 
 
+def test_a_victim_lies_at_the_median_of_its_fixes_not_where_late_strays_pull_it() -> None:
+    """A body seen 40 times around (2, 1), then out of view for a minute, its filter's
+    uncertainty grown, then three fixes 0.9 m off that fall inside its gate (a stray
+    view of it, lawnmower T3 in the suite): the filter's mean follows them (0.4 m),
+    the reported position stays among the 43 fixes (their geometric median)."""
+    rng = np.random.default_rng(3)
+    tracker = VictimTracker(PARAMS)
+    for k in range(40):
+        n, e = np.array([2.0, 1.0]) + rng.normal(0.0, 0.15, 2)
+        tracker.update([obs(n, e, 0.2 * k)], T0 + 0.2 * k, always)
+    [victim] = tracker.victims()
+    assert math.hypot(victim.north_m - 2.0, victim.east_m - 1.0) < 0.1
+    events = []
+    for k in range(3):
+        t = 70.0 + 0.2 * k
+        events += tracker.update([obs(2.9, 1.0, t)], T0 + t, always)
+    after = tracker.victim(victim.victim_id)
+    assert after.observations == 43 and not events  # the strays were its fixes
+    assert math.hypot(after.north_m - victim.north_m, after.east_m - victim.east_m) < 0.05
+    snapshot = tracker.snapshot()
+    [track] = snapshot["tracks"]
+    assert track["x"][0] > 2.3  # the filter's mean did follow them
+    assert len(track["fixes"]) == 43
+    # A restart reports the same position; a snapshot from before the fixes were
+    # stored reports the filter's mean until the track has fixes again.
+    restored = VictimTracker.restore(PARAMS, snapshot).victim(victim.victim_id)
+    assert (restored.north_m, restored.east_m) == (after.north_m, after.east_m)
+    del track["fixes"]
+    old = VictimTracker.restore(PARAMS, snapshot).victim(victim.victim_id)
+    assert (old.north_m, old.east_m) == tuple(track["x"])
+
+
+def test_a_victim_keeps_the_newest_fixes_and_a_merge_pools_them() -> None:
+    params = TrackerParams(position_fixes=5, same_victim_m=0.0)
+    tracker = VictimTracker(params)
+    tight = 0.01
+    for k in range(3):
+        tracker.update([obs(0.0, 0.0, k, tight)], T0 + k, always)
+    for k in range(3, 10):  # the same body, its floor point 0.2 m further on
+        tracker.update([obs(0.2, 0.0, k, tight)], T0 + k, always)
+    [victim] = tracker.victims()
+    assert victim.north_m == pytest.approx(0.2, abs=0.002)  # the newest 5 fixes
+    for k in range(10, 13):  # a second body 0.6 m away, then both seen as one
+        tracker.update([obs(0.8, 0.0, k, tight)], T0 + k, always)
+    merged = []
+    for k in range(13, 60):
+        pair = [obs(0.5, 0.0, k, tight), obs(0.5, 0.0, k, tight)]
+        merged += [e for e in tracker.update(pair, T0 + k, always) if e.kind == EventKind.MERGED]
+    assert len(merged) == 1
+    [survivor] = (t for t in tracker.snapshot()["tracks"] if t["state"] == "CONFIRMED")
+    assert [f[0] for f in survivor["fixes"]] == sorted(f[0] for f in survivor["fixes"])
+    assert len(survivor["fixes"]) == 5 and survivor["fixes"][-1][0] == T0 + 59
+
+
 def test_a_merged_victim_keeps_having_been_seen_whole() -> None:
     """Two IDs of one victim merge: the survivor was seen as a body and as a lone
     part as often as both together (its lone hand then only supports it)."""
@@ -435,6 +489,9 @@ def _snapshot() -> dict[str, Any]:
         (("tracks", 0, "body_seen"), "yes", r"tracks\[0\]\.body_seen: expected true or false"),
         (("tracks", 0, "part_hits"), -1, r"tracks\[0\]\.part_hits"),
         (("tracks", 2, "seen_with"), [0], r"tracks\[2\]\.seen_with: expected a list of track"),
+        (("tracks", 0, "fixes"), "none", r"tracks\[0\]\.fixes: expected a list"),
+        (("tracks", 1, "fixes"), [[1.0, 2.0]], r"tracks\[1\]\.fixes\[0\]: expected a list of 3"),
+        (("tracks", 1, "fixes"), [[1.0, 2.0, None]], r"tracks\[1\]\.fixes\[0\]\[2\]"),
         (("tracks", 0, "history"), [], r"tracks\[0\]\.history"),
         (("tracks", 1, "track_id"), 1, r"duplicate track_id"),
         (("tracks", 2, "victim_id"), 3, r"victim_id 3 does not fit state TENTATIVE"),
