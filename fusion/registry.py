@@ -218,6 +218,13 @@ def _float(value: Any, where: str) -> float:
     return float(value)
 
 
+def _percent(value: Any, where: str) -> float:
+    pct = _float(value, where)
+    if not 0.0 <= pct <= 100.0:
+        raise FusionError(f"snapshot{where}: expected a percentage 0-100, got {value!r}")
+    return pct
+
+
 def _floats(value: Any, n: int, where: str) -> tuple[float, ...]:
     if not isinstance(value, list) or len(value) != n:
         raise FusionError(f"snapshot{where}: expected a list of {n} numbers, got {value!r}")
@@ -248,6 +255,12 @@ def _record(obj: Any, where: str) -> TrackRecord:
         cast(tuple[float, float, float], _floats(h, 3, f"{where}.history[{i}]"))
         for i, h in enumerate(history_raw)
     )
+    for i, (_t, visibility, quality) in enumerate(history):
+        if not (0.0 <= visibility <= 100.0 and 0.0 <= quality <= 1.0):
+            raise FusionError(
+                f"snapshot{where}.history[{i}]: expected [t_unix_s, visibility_pct 0-100, "
+                f"quality 0-1], got {list(history[i])!r}"
+            )
     merged_into = _get(obj, "merged_into", where)
     if merged_into is not None and (
         isinstance(merged_into, bool) or not isinstance(merged_into, int)
@@ -292,7 +305,7 @@ def _record(obj: Any, where: str) -> TrackRecord:
         last_seen_unix_s=_float(_get(obj, "last_seen_unix_s", where), f"{where}.last_seen_unix_s"),
         history=history,
         urgency=_enum(_get(obj, "urgency", where), Urgency, f"{where}.urgency"),
-        visibility_pct=_float(_get(obj, "visibility_pct", where), f"{where}.visibility_pct"),
+        visibility_pct=_percent(_get(obj, "visibility_pct", where), f"{where}.visibility_pct"),
         merged_into=merged_into,
         body_hits=body_hits,
         part_hits=part_hits,

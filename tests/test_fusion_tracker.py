@@ -493,6 +493,8 @@ def _snapshot() -> dict[str, Any]:
         (("tracks", 1, "fixes"), [[1.0, 2.0]], r"tracks\[1\]\.fixes\[0\]: expected a list of 3"),
         (("tracks", 1, "fixes"), [[1.0, 2.0, None]], r"tracks\[1\]\.fixes\[0\]\[2\]"),
         (("tracks", 0, "history"), [], r"tracks\[0\]\.history"),
+        (("tracks", 0, "history"), [[T0, 50.0, -1.0]], r"history\[0\]: expected \[t_unix_s"),
+        (("tracks", 1, "visibility_pct"), 150.0, r"visibility_pct: expected a percentage"),
         (("tracks", 1, "track_id"), 1, r"duplicate track_id"),
         (("tracks", 2, "victim_id"), 3, r"victim_id 3 does not fit state TENTATIVE"),
         (("tracks",), "none", r"snapshot\.tracks: expected a list"),
