@@ -175,12 +175,15 @@ class ReportPolicy:
                 state, urgency, north_m, east_m, t_unix_s, *rest = value
                 if len(rest) > 1:
                     raise ValueError("too many fields")
+                n, e, t = float(north_m), float(east_m), float(t_unix_s)
+                if not math.isfinite(n + e + t) or int(key) < 1:
+                    raise ValueError("not a victim ID and finite numbers")
                 reported[int(key)] = Reported(
                     TrackState[state],
                     Urgency[urgency],
-                    float(north_m),
-                    float(east_m),
-                    float(t_unix_s),
+                    n,
+                    e,
+                    t,
                     Urgency[rest[0] if rest else urgency],
                 )
             except (KeyError, TypeError, ValueError):

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from companion.reporting import (
     FLAG_MOVED,
@@ -104,10 +107,51 @@ def test_restart_reannounces_nothing() -> None:
     assert q.decide([TrackEvent(EventKind.CONFIRMED, v)], [v], 200.0) == []
 
 
-@pytest.mark.parametrize("bad", [[], {"1": ["CONFIRMED"]}, {"x": ["CONFIRMED", "LIGHT", 1, 2, 3]}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        [],
+        {"1": ["CONFIRMED"]},
+        {"x": ["CONFIRMED", "LIGHT", 1, 2, 3]},
+        {"1": ["CONFIRMED", "LIGHT", float("nan"), 2, 3]},
+        {"0": ["CONFIRMED", "LIGHT", 1, 2, 3]},
+    ],
+)
 def test_malformed_saved_state_is_named(bad: object) -> None:
     with pytest.raises(ValueError, match="reported-state"):
         _policy().restore(bad)
+
+
+@settings(max_examples=500, deadline=None)
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=10),
+        lambda inner: st.lists(inner, max_size=7) | st.dictionaries(st.text(max_size=4), inner),
+        max_leaves=12,
+    )
+    | st.dictionaries(
+        st.text(max_size=4),
+        st.lists(
+            st.sampled_from(["CONFIRMED", "LIGHT", "MEDIUM", "RESCUED"])
+            | st.floats()
+            | st.integers(),
+            min_size=5,
+            max_size=6,
+        ),
+        max_size=3,
+    )
+)
+def test_any_saved_state_restores_or_is_named(saved: object) -> None:
+    """What was reported, read back from disk, fuzzed: it restores with finite
+    positions or raises ValueError; never anything else."""
+    p = _policy()
+    try:
+        p.restore(saved)
+    except ValueError as exc:
+        assert "reported-state" in str(exc)
+        return
+    for vid, r in p.reported.items():
+        assert vid >= 1 and math.isfinite(r.north_m + r.east_m + r.t_unix_s)
 
 
 def test_every_reported_victim_again_when_the_origin_becomes_known() -> None:
