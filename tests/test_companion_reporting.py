@@ -19,6 +19,7 @@ from companion.reporting import (
 )
 from fusion.registry import EventKind, TrackEvent, Victim
 from fusion.types import TrackState, Urgency
+from tests.jsonfuzz import json_values
 
 
 def _victim(**kw: object) -> Victim:
@@ -124,11 +125,7 @@ def test_malformed_saved_state_is_named(bad: object) -> None:
 
 @settings(max_examples=500, deadline=None)
 @given(
-    st.recursive(
-        st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=10),
-        lambda inner: st.lists(inner, max_size=7) | st.dictionaries(st.text(max_size=4), inner),
-        max_leaves=12,
-    )
+    json_values
     | st.dictionaries(
         st.text(max_size=4),
         st.lists(

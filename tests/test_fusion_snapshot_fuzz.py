@@ -16,19 +16,10 @@ from fusion.errors import FusionError
 from fusion.params import TrackerParams
 from fusion.tracker import VictimTracker
 from fusion.types import Observation
+from tests.jsonfuzz import json_values
 
 T0 = 1_700_000_000.0
 PARAMS = TrackerParams()
-
-json_values = st.recursive(
-    st.none()
-    | st.booleans()
-    | st.integers(-(2**70), 2**70)
-    | st.floats()  # NaN and infinities too: json.loads reads them
-    | st.text(max_size=8),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner),
-    max_leaves=8,
-)
 
 
 def _snapshot() -> dict[str, Any]:
