@@ -26,7 +26,7 @@ from typing import Any, cast
 
 from fusion.errors import FusionError
 from fusion.geodesy import ned_to_geodetic
-from fusion.types import Cov2, GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import MAX_LOCAL_M, Cov2, GlobalOrigin, TrackState, Urgency, VictimReport
 
 
 class EventKind(Enum):
@@ -133,7 +133,8 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 # "body_seen" reads as 1 and 0 hits when it is true, else as 0 and 0. "fixes" (the
 # fixes whose median is the victim's position) was added on 2026-11-28; a snapshot
 # without it reads as none, and the track reports its filter's mean until it has
-# new ones.
+# new ones. A position ("x", a fix) more than MAX_LOCAL_M from the origin is refused,
+# as on the vehicle link: a stored fix at 1e154 m overflowed the median.
 
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
 SNAPSHOT_VERSION = 1
@@ -225,6 +226,14 @@ def _percent(value: Any, where: str) -> float:
     return pct
 
 
+def _local(north_m: float, east_m: float, where: str) -> None:
+    if max(abs(north_m), abs(east_m)) > MAX_LOCAL_M:
+        raise FusionError(
+            f"snapshot{where}: ({north_m!r}, {east_m!r}) lies more than {MAX_LOCAL_M:.0f} m "
+            "from the origin"
+        )
+
+
 def _floats(value: Any, n: int, where: str) -> tuple[float, ...]:
     if not isinstance(value, list) or len(value) != n:
         raise FusionError(f"snapshot{where}: expected a list of {n} numbers, got {value!r}")
@@ -273,6 +282,7 @@ def _record(obj: Any, where: str) -> TrackRecord:
     if (merged_into is not None) != (state == TrackState.MERGED):
         raise FusionError(f"snapshot{where}: merged_into must be set exactly for MERGED tracks")
     x = _floats(_get(obj, "x", where), 2, f"{where}.x")
+    _local(x[0], x[1], f"{where}.x")
     body_seen = obj.get("body_seen", False)  # before body_hits (see the format above)
     if not isinstance(body_seen, bool):
         raise FusionError(f"snapshot{where}.body_seen: expected true or false, got {body_seen!r}")
@@ -290,6 +300,8 @@ def _record(obj: Any, where: str) -> TrackRecord:
         cast(tuple[float, float, float], _floats(f, 3, f"{where}.fixes[{i}]"))
         for i, f in enumerate(fixes_raw)
     )
+    for i, (_t, north_m, east_m) in enumerate(fixes):
+        _local(north_m, east_m, f"{where}.fixes[{i}]")
     return TrackRecord(
         track_id=_int(obj, "track_id", where, 1),
         victim_id=victim_id,

@@ -33,13 +33,12 @@ from dataclasses import asdict, dataclass, fields
 from enum import Enum
 from typing import Any
 
-from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import MAX_LOCAL_M, GlobalOrigin, TrackState, Urgency, VictimReport
 from hq.errors import HqError
 from mavlink_io.picture import MAX_PICTURE_BYTES, BadChunk, check_jpeg
 
 MAX_UNIX_S = 4_102_444_800.0  # 2100-01-01T00:00:00Z
 MAX_REPORT_TIME_USEC = int(MAX_UNIX_S) * 1_000_000
-MAX_LOCAL_M = 100_000.0  # a search area, not a continent
 MIN_VARIANCE_M2 = 1e-6  # 1 mm sigma
 MAX_VARIANCE_M2 = 1e10  # 100 km sigma
 MIN_ALT_M = -1_000.0  # below the Dead Sea shore, above any mine floor

@@ -24,7 +24,7 @@ from types import ModuleType
 from typing import Any
 
 from fusion.geodesy import ned_to_geodetic
-from fusion.types import GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import MAX_LOCAL_M, GlobalOrigin, TrackState, Urgency, VictimReport
 from mavlink_io import dialect
 from mavlink_io.errors import MavlinkIOError
 
@@ -44,7 +44,6 @@ FLAG_REQUESTED = 16
 
 # What an autopilot on the ground can report; beyond is a corrupt or forged message.
 MAX_ANGLE_RAD = 2.0 * math.pi
-MAX_LOCAL_M = 100_000.0  # from the EKF origin
 MAX_SPEED_M_S = 500.0
 ALT_RANGE_M = (-1000.0, 20_000.0)  # AMSL: below the Dead Sea to above any mountain
 

@@ -492,6 +492,8 @@ def _snapshot() -> dict[str, Any]:
         (("tracks", 0, "fixes"), "none", r"tracks\[0\]\.fixes: expected a list"),
         (("tracks", 1, "fixes"), [[1.0, 2.0]], r"tracks\[1\]\.fixes\[0\]: expected a list of 3"),
         (("tracks", 1, "fixes"), [[1.0, 2.0, None]], r"tracks\[1\]\.fixes\[0\]\[2\]"),
+        (("tracks", 1, "fixes"), [[T0, 1.0, 1.3e154]], r"fixes\[0\]: \(1\.0, 1\.3e\+154\) lies"),
+        (("tracks", 0, "x"), [-2e5, 0.0], r"tracks\[0\]\.x: \(-200000\.0, 0\.0\) lies more"),
         (("tracks", 0, "history"), [], r"tracks\[0\]\.history"),
         (("tracks", 0, "history"), [[T0, 50.0, -1.0]], r"history\[0\]: expected \[t_unix_s"),
         (("tracks", 1, "visibility_pct"), 150.0, r"visibility_pct: expected a percentage"),
