@@ -443,7 +443,8 @@ def _victim_table(
     for v in world.victims:
         m = by_true.get(v.victim_id)
         if m is None:
-            lines.append(f"T{v.victim_id:<11d} {v.urgency.name:<10s} not reported")
+            unseen = " (never in view)" if v.victim_id in result.never_in_view_ids else ""
+            lines.append(f"T{v.victim_id:<11d} {v.urgency.name:<10s} not reported{unseen}")
             continue
         r = by_id[m.reported_id]
         seen = first_in_view.get(v.victim_id)

@@ -7,6 +7,10 @@ uncovered part: a detector that sees only a hand reports the hand, and either
 place is where rescuers dig.
 
 - recall: matched true victims / true victims (None when there are none);
+- recall in view: the same over the victims that came into the camera's view (the
+  truth's ``first_in_view_unix_s`` is set: at least ``MIN_VIEW_PX`` body pixels on
+  some frame). A victim the route never showed is a miss of the mission's coverage,
+  not of perception; both figures are given, recall is the target;
 - false victims: reports within ``gate_m`` of no true victim;
 - duplicates: unmatched reports within the gate of a true victim (the same person
   reported under another ID), counted per true victim;
@@ -63,6 +67,9 @@ class TrueVictim:
 @dataclass(frozen=True)
 class GroundTruth:
     victims: tuple[TrueVictim, ...]
+    # Whether each victim's first_in_view_unix_s was recorded (None then means the
+    # victim never came into view) or is simply not known.
+    view_known: bool = False
 
 
 @dataclass(frozen=True)
@@ -94,10 +101,25 @@ class ScoreResult:
     missed_ids: tuple[int, ...]
     false_victims: int
     duplicates: dict[int, int] = field(default_factory=dict)  # true id -> extra reports
+    never_in_view_ids: tuple[int, ...] = ()  # true victims no frame showed
+    view_known: bool = False  # the truth recorded which victims came into view
 
     @property
     def recall(self) -> float | None:
         return len(self.matches) / self.true_victims if self.true_victims else None
+
+    @property
+    def in_view(self) -> int:
+        return self.true_victims - len(self.never_in_view_ids)
+
+    @property
+    def recall_in_view(self) -> float | None:
+        """Recall over the victims that came into view; None where the truth does
+        not say which did, or none did."""
+        if not self.view_known or not self.in_view:
+            return None
+        found = sum(m.true_id not in self.never_in_view_ids for m in self.matches)
+        return found / self.in_view
 
     def _errors(self) -> np.ndarray:
         return np.array([m.error_m for m in self.matches], float)
@@ -142,7 +164,9 @@ class ScoreResult:
             "reported": self.reported,
             "matched": len(self.matches),
             "recall": self.recall,
+            "recall_in_view": self.recall_in_view,
             "missed_ids": list(self.missed_ids),
+            "never_in_view_ids": list(self.never_in_view_ids),
             "false_victims": self.false_victims,
             "duplicates": self.duplicate_count,
             "duplicates_per_true_victim": {str(k): v for k, v in self.duplicates.items()},
@@ -239,6 +263,10 @@ def score(
         missed_ids=tuple(t.victim_id for t in tv if t.victim_id not in matched_ids),
         false_victims=false_victims,
         duplicates=duplicates,
+        never_in_view_ids=tuple(t.victim_id for t in tv if t.first_in_view_unix_s is None)
+        if truth.view_known
+        else (),
+        view_known=truth.view_known,
     )
 
 
@@ -287,7 +315,8 @@ def _victim_list(data: Any, path: Path) -> list[dict[str, Any]]:
 
 def truth_from_dict(data: Any, path: Path = Path("ground_truth.json")) -> GroundTruth:
     out = []
-    for k, v in enumerate(_victim_list(data, path)):
+    items = _victim_list(data, path)
+    for k, v in enumerate(items):
         where = f"{path}: victims[{k}]"
         out.append(
             TrueVictim(
@@ -300,7 +329,7 @@ def truth_from_dict(data: Any, path: Path = Path("ground_truth.json")) -> Ground
                 first_in_view_unix_s=_field(v, "first_in_view_unix_s", where, float, optional=True),
             )
         )
-    return GroundTruth(tuple(out))
+    return GroundTruth(tuple(out), all("first_in_view_unix_s" in v for v in items))
 
 
 def report_from_dict(data: Any, path: Path = Path("report.json")) -> list[ReportedVictim]:
@@ -358,7 +387,8 @@ def truth_of_world(
                 seen.get(v.victim_id),
             )
             for v in world.victims
-        )
+        ),
+        first_in_view_unix_s is not None,
     )
 
 
@@ -376,12 +406,23 @@ def format_score(result: ScoreResult) -> str:
     def f(x: float | None, unit: str = "", digits: int = 2) -> str:
         return "n/a" if x is None else f"{x:.{digits}f}{unit}"
 
+    def pct(x: float | None) -> str:
+        return "n/a" if x is None else f"{x:.0%}"
+
     d = result.as_dict()
     recall = result.recall
     lines = [
         f"true victims {result.true_victims}, reported {result.reported}, matched {len(result.matches)}",
         f"recall {'n/a' if recall is None else f'{recall:.0%}'}"
         + (f" (missed ids {list(result.missed_ids)})" if result.missed_ids else ""),
+        *(
+            [
+                f"recall of the {result.in_view} victims that came into view "
+                f"{pct(result.recall_in_view)} (never in view: ids {list(result.never_in_view_ids)})"
+            ]
+            if result.never_in_view_ids
+            else []
+        ),
         f"false victims {result.false_victims}",
         f"duplicate IDs {result.duplicate_count}"
         + (f" (per true victim {d['duplicates_per_true_victim']})" if result.duplicates else ""),

@@ -33,8 +33,10 @@ from scenarios.score import (
     ReportedVictim,
     ScoreInputError,
     TrueVictim,
+    format_score,
     load_report,
     score,
+    truth_from_dict,
 )
 from scenarios.world import preset
 
@@ -132,7 +134,8 @@ def _truth() -> GroundTruth:
             # Buried: only a hand at (9.8, 3.6) shows, 0.9 m from the body centre.
             TrueVictim(3, 9.0, 3.2, Urgency.CRITICAL, 9.8, 3.6, first_in_view_unix_s=120.0),
             TrueVictim(4, 10.5, 7.0, Urgency.LIGHT, first_in_view_unix_s=None),
-        )
+        ),
+        view_known=True,
     )
 
 
@@ -155,6 +158,31 @@ def test_score_on_a_hand_made_case() -> None:
     assert r.error_p95_m == pytest.approx(0.1 + 0.9 * 0.3)  # numpy's linear percentile
     assert r.urgency_accuracy == pytest.approx(2 / 3)
     assert sorted(r.time_to_report_s) == pytest.approx([2.0, 3.0, 5.0])  # 103-100, 112-110, 125-120
+    # Victim 4 never came into view: recall over the three that did is whole.
+    assert r.never_in_view_ids == (4,)
+    assert r.recall_in_view == 1.0
+    assert "never in view: ids [4]" in format_score(r)
+
+
+def test_recall_in_view_only_where_the_truth_records_the_views() -> None:
+    victims = [
+        {"victim_id": 1, "north_m": 1.0, "east_m": 1.0, "urgency": "LIGHT"},
+        {"victim_id": 2, "north_m": 5.0, "east_m": 5.0, "urgency": "MEDIUM"},
+    ]
+    found = [ReportedVictim(9, Urgency.MEDIUM, 5.1, 5.0, 0.0)]
+    # A truth without first_in_view_unix_s says nothing of what was seen.
+    unknown = score(truth_from_dict({"victims": victims}), found)
+    assert unknown.never_in_view_ids == () and unknown.recall_in_view is None
+    # Recorded: victim 1 was seen and missed, victim 2 never seen yet found (a report
+    # near a hidden body is a match, but not one of the victims in view).
+    seen = [
+        {**victims[0], "first_in_view_unix_s": 10.0},
+        {**victims[1], "first_in_view_unix_s": None},
+    ]
+    known = score(truth_from_dict({"victims": seen}), found)
+    assert known.recall == 0.5
+    assert known.never_in_view_ids == (2,)
+    assert known.recall_in_view == 0.0
 
 
 def test_hungarian_prefers_the_globally_best_assignment() -> None:
