@@ -99,26 +99,36 @@ def _parser() -> argparse.ArgumentParser:
     )
     det = sub.add_parser(
         "detect",
-        help="run the perception step on image files",
-        description="Run the person detection on image files and print what it finds.",
+        help="run the perception step on image and video files",
+        description="Run the person detection on image and video files and print what it finds.",
     )
     det.add_argument(
         "--config", type=Path, default=None, help="camera and detector settings (default: built-in)"
     )
-    det.add_argument("--json", action="store_true", help="print one JSON object per image")
+    det.add_argument(
+        "--json", action="store_true", help="print one JSON object per image or video frame"
+    )
     det.add_argument(
         "--annotate",
         type=Path,
         default=None,
         metavar="DIR",
-        help="write a copy of each image with its detections drawn into DIR",
+        help="write a copy of each image (a PNG) or video (an MP4) with its detections "
+        "drawn into DIR",
+    )
+    det.add_argument(
+        "--every",
+        type=_positive_int,
+        default=1,
+        metavar="N",
+        help="in a video, detect on every N-th frame (default 1: all)",
     )
     det.add_argument(
         "images",
         type=Path,
         nargs="+",
         metavar="IMAGE_OR_DIR",
-        help="image files, or folders of them",
+        help="image or video files, or folders of them",
     )
     models = sub.add_parser(
         "models",
@@ -134,6 +144,17 @@ def _parser() -> argparse.ArgumentParser:
         "--dir", type=Path, default=None, help="model folder (default: the one in the venv)"
     )
     return parser
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
 
 
 def _models(action: str, folder: Path | None) -> int:
@@ -168,7 +189,7 @@ def _detect(args: argparse.Namespace) -> int:
             print(f"rescue-companion: config error: {exc}", file=sys.stderr)
             return EXIT_CONFIG
     try:
-        return run_detect(config, args.images, args.json, args.annotate)
+        return run_detect(config, args.images, args.json, args.annotate, args.every)
     except VisionError as exc:
         print(f"rescue-companion: detect: {exc}", file=sys.stderr)
         return EXIT_CONFIG

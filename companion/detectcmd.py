@@ -1,4 +1,4 @@
-"""``rescue-companion detect``: the perception step on image files.
+"""``rescue-companion detect``: the perception step on image and video files.
 
 For each image: every detection's box ``[x, y, w, h]`` in pixels, score, cues,
 visibility in percent and urgency; ``--json`` prints one JSON object per image.
@@ -7,13 +7,24 @@ the body's own extent in the image. With a config, the frame is taken as seen by
 that camera, on its mount, from a level vehicle on a flat floor: visibility is
 then measured against a whole lying adult at the detection's floor point.
 
-An unreadable or truncated image is named on stderr and skipped; the exit status
-is then 2.
+A video file (by its suffix) is read frame by frame, every ``--every``-th frame
+detected as the companion does on a live camera: one detector for the stream, its
+extra passes and part detectors taking turns over the frames (an image gets all of
+them). The text output lists the frames with detections and a summary line; JSON
+has one object per frame detected, with ``frame`` (its index in the file) and
+``t_s`` (its time in the video). ``--annotate`` writes the video, annotated, as
+``DIR/<name>.mp4``.
+
+An unreadable or truncated image, or a video that cannot be opened or ends before
+the frame count its header gives, is named on stderr (an image is skipped, a
+video's decoded frames are kept); the exit status is then 2.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import statistics
 import sys
 import time
 from collections.abc import Iterator, Sequence
@@ -28,6 +39,7 @@ from companion.vision import Detector, FrameGeometry, assess, make_detector
 from fusion.types import Detection, PoseSample, Urgency
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
+VIDEO_SUFFIXES = {".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".ts"}
 URGENCY_BGR = {
     Urgency.LIGHT: (80, 200, 60),
     Urgency.MEDIUM: (0, 170, 255),
@@ -49,19 +61,29 @@ def read_image(path: Path) -> np.ndarray:
         raise ImageError(f"{path}: truncated JPEG (no end-of-image marker)")
     if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-16:]:
         raise ImageError(f"{path}: truncated PNG (no IEND chunk)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if not data:
+        raise ImageError(f"{path}: empty file")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error as exc:  # OpenCV refuses some damaged headers by raising
+        raise ImageError(f"{path}: not an image OpenCV can decode ({exc.err})") from None
     if image is None or image.size == 0:
         raise ImageError(f"{path}: not an image OpenCV can decode")
     return image
 
 
 def expand(inputs: Sequence[Path]) -> Iterator[Path]:
-    """Files as given; folders as their image files, sorted."""
+    """Files as given; folders as their image and video files, sorted."""
+    known = IMAGE_SUFFIXES | VIDEO_SUFFIXES
     for p in inputs:
         if p.is_dir():
-            yield from sorted(f for f in p.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES)
+            yield from sorted(f for f in p.iterdir() if f.suffix.lower() in known)
         else:
             yield p
+
+
+def is_video(path: Path) -> bool:
+    return path.suffix.lower() in VIDEO_SUFFIXES
 
 
 def level_geometry(config: Config, width_px: int, height_px: int) -> FrameGeometry:
@@ -106,19 +128,70 @@ def annotate(image: np.ndarray, rows: list[dict[str, object]]) -> np.ndarray:
     return out
 
 
+class _Output:
+    """Prints each image's or video frame's detections, as text or JSON lines."""
+
+    def __init__(self, as_json: bool) -> None:
+        self.as_json = as_json
+
+    def frame(
+        self,
+        name: str,
+        rows: list[dict[str, object]],
+        ms: float,
+        video_at: tuple[int, float] | None = None,
+    ) -> None:
+        """``video_at``: a video frame's index and time in seconds; None: an image."""
+        if self.as_json:
+            doc: dict[str, object] = {"image": name}
+            if video_at is not None:
+                doc.update(frame=video_at[0], t_s=round(video_at[1], 3))
+            doc.update(ms=round(ms, 1), detections=rows)
+            print(json.dumps(doc))
+            return
+        if video_at is not None and not rows:
+            return  # a video's empty frames: counted in its summary line
+        where = name if video_at is None else f"{name} frame {video_at[0]} ({video_at[1]:.1f} s)"
+        print(f"{where}: {len(rows)} detection(s), {ms:.0f} ms")
+        for r in rows:
+            vis = r["visibility_pct"]
+            vis_txt = "   ?  " if vis is None else f"{vis:5.1f}%"
+            print(
+                f"  box {r['box']} score {r['score']:.2f} {vis_txt} {r['urgency'] or '?':8s} "
+                f"cues {','.join(r['cues'])}"  # type: ignore[arg-type]
+            )
+
+
+def _fail(message: str) -> None:
+    print(f"rescue-companion: detect: {message}", file=sys.stderr)
+
+
 def run_detect(
-    config: Config | None, inputs: Sequence[Path], as_json: bool, annotate_dir: Path | None
+    config: Config | None,
+    inputs: Sequence[Path],
+    as_json: bool,
+    annotate_dir: Path | None,
+    every: int = 1,
 ) -> int:
+    if every < 1:
+        raise ValueError(f"every must be >= 1, got {every}")
     detector_config = config.detector if config is not None else DetectorConfig()
     detector: Detector = make_detector(detector_config, single_images=True)
     if annotate_dir is not None:
         annotate_dir.mkdir(parents=True, exist_ok=True)
+    out = _Output(as_json)
     failed = 0
     for path in expand(inputs):
+        if is_video(path):
+            ok = _detect_video(
+                make_detector(detector_config), config, path, out, annotate_dir, every
+            )
+            failed += not ok
+            continue
         try:
             image = read_image(path)
         except ImageError as exc:
-            print(f"rescue-companion: detect: {exc}", file=sys.stderr)
+            _fail(str(exc))
             failed += 1
             continue
         h, w = image.shape[:2]
@@ -127,20 +200,84 @@ def run_detect(
         dets = detector.detect(image, geometry, 0.0)
         ms = (time.perf_counter() - t0) * 1000.0
         rows = [describe(d, geometry) for d in dets]
-        if as_json:
-            print(json.dumps({"image": str(path), "ms": round(ms, 1), "detections": rows}))
-        else:
-            print(f"{path}: {len(rows)} detection(s), {ms:.0f} ms")
-            for r in rows:
-                vis = r["visibility_pct"]
-                vis_txt = "   ?  " if vis is None else f"{vis:5.1f}%"
-                print(
-                    f"  box {r['box']} score {r['score']:.2f} {vis_txt} {r['urgency'] or '?':8s} "
-                    f"cues {','.join(r['cues'])}"  # type: ignore[arg-type]
-                )
+        out.frame(str(path), rows, ms)
         if annotate_dir is not None:
-            out = annotate_dir / (path.stem + ".png")
-            if not cv2.imwrite(str(out), annotate(image, rows)):
-                print(f"rescue-companion: detect: cannot write {out}", file=sys.stderr)
+            target = annotate_dir / (path.stem + ".png")
+            if not cv2.imwrite(str(target), annotate(image, rows)):
+                _fail(f"cannot write {target}")
                 failed += 1
     return 2 if failed else 0
+
+
+def _detect_video(
+    detector: Detector,
+    config: Config | None,
+    path: Path,
+    out: _Output,
+    annotate_dir: Path | None,
+    every: int,
+) -> bool:
+    """Detect on every ``every``-th frame of a video file; False if the file could not
+    be opened, was cut short or its annotated copy could not be written."""
+    if not path.is_file():
+        _fail(f"{path}: no such file")
+        return False
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            _fail(f"{path}: not a video OpenCV can read")
+            return False
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+        fps = fps if math.isfinite(fps) and fps > 0.0 else 10.0
+        expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        writer: cv2.VideoWriter | None = None
+        write_ok = True
+        geometry: FrameGeometry | None = None
+        index = detected = with_people = 0
+        times: list[float] = []
+        while True:
+            ok, image = cap.read()
+            if not ok or image is None:
+                break
+            index += 1
+            if (index - 1) % every:
+                continue
+            h, w = image.shape[:2]
+            if config is not None and geometry is None:
+                geometry = level_geometry(config, w, h)
+            t_s = (index - 1) / fps
+            t0 = time.perf_counter()
+            dets = detector.detect(image, geometry, t_s)
+            times.append((time.perf_counter() - t0) * 1000.0)
+            rows = [describe(d, geometry) for d in dets]
+            detected += 1
+            with_people += bool(rows)
+            out.frame(str(path), rows, times[-1], (index - 1, t_s))
+            if annotate_dir is not None and write_ok:
+                if writer is None:
+                    target = annotate_dir / (path.stem + ".mp4")
+                    writer = cv2.VideoWriter(
+                        str(target), cv2.VideoWriter.fourcc(*"mp4v"), fps / every, (w, h)
+                    )
+                    if not writer.isOpened():
+                        _fail(f"cannot write {target}")
+                        write_ok = False
+                if write_ok:
+                    writer.write(annotate(image, rows))
+        if writer is not None:
+            writer.release()
+    finally:
+        cap.release()
+    if index == 0:
+        _fail(f"{path}: no frame OpenCV can decode")
+        return False
+    if not out.as_json:
+        ms = f", median {statistics.median(times):.0f} ms a frame" if times else ""
+        print(
+            f"{path}: {index} frames, {detected} detected (every {every}), "
+            f"{with_people} with detections{ms}"
+        )
+    if expected > 0 and index < expected - 1:
+        _fail(f"{path}: ended after {index} of the {expected} frames its header gives")
+        return False
+    return write_ok
