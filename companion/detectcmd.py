@@ -35,6 +35,7 @@ import numpy as np
 
 from companion.config import Config, DetectorConfig
 from companion.errors import CompanionError
+from companion.sources.base import decode_image
 from companion.vision import Detector, FrameGeometry, assess, make_detector
 from fusion.types import Detection, PoseSample, Urgency
 
@@ -63,11 +64,8 @@ def read_image(path: Path) -> np.ndarray:
         raise ImageError(f"{path}: truncated PNG (no IEND chunk)")
     if not data:
         raise ImageError(f"{path}: empty file")
-    try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    except cv2.error as exc:  # OpenCV refuses some damaged headers by raising
-        raise ImageError(f"{path}: not an image OpenCV can decode ({exc.err})") from None
-    if image is None or image.size == 0:
+    image = decode_image(data)
+    if image is None:
         raise ImageError(f"{path}: not an image OpenCV can decode")
     return image
 

@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.detectcmd import run_detect
+from tests.badimages import huge_jpeg
 
 URGENCIES = {"LIGHT", "MEDIUM", "CRITICAL", None}
 DETECTION_KEYS = {"box", "score", "cues", "visibility_pct", "urgency"}
@@ -103,6 +104,7 @@ def test_every_unreadable_input_is_named_and_the_rest_still_run(tmp_path: Path) 
         "c_cut.png": png[: len(png) // 2],
         "d_noise.jpg": bytes(range(256)) * 8,
         "e_empty.png": b"",
+        "e_huge.jpg": huge_jpeg(),
         "f_noise.mp4": b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 4,
     }
     for name, data in bad.items():

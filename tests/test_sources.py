@@ -27,6 +27,7 @@ from companion.sources import (
     write_frame,
 )
 from companion.sources.sim import SimSource
+from tests.badimages import huge_jpeg
 
 # Clock mapping: time.time() and time.monotonic() are sampled a few microseconds
 # apart; 50 ms allows for a loaded 2-core test machine between the two samples.
@@ -92,6 +93,7 @@ def test_frames_folder_sorted_by_time_with_bad_files_skipped(tmp_path: Path) -> 
     for i, t_us in enumerate(stamps_us):
         cv2.imwrite(str(tmp_path / f"{t_us}.png"), _marked(i))
     (tmp_path / "1700000001000000.jpg").write_bytes(b"\xff\xd8 broken jpeg")
+    (tmp_path / "1700000001100000.jpg").write_bytes(huge_jpeg())  # OpenCV raises on it
     (tmp_path / "notes.txt").write_text("ignored")
     (tmp_path / "frame_12.png").write_bytes(b"ignored: not <unix_us>.png")
 
@@ -217,13 +219,14 @@ def test_sim_corrupt_jpeg_is_skipped_and_stream_stays_in_step(server: CameraServ
     source = SimSource("127.0.0.1", server.port)
     assert server.connected.wait(5.0)
     server.outgoing.put(encode_sim_frame(b"\xff\xd8 not really a jpeg", time.time()))
-    frame_1 = _marked(1)
-    server.send_frame(frame_1, time.time())
+    server.outgoing.put(encode_sim_frame(huge_jpeg(), time.time()))
+    frame_2 = _marked(2)
+    server.send_frame(frame_2, time.time())
     frame = source.read(5.0)
     source.close()
-    assert _mark_of(frame.image) == 1
-    assert frame.index == 1
-    assert source.frames_corrupt + source.frames_dropped == 1
+    assert _mark_of(frame.image) == 2
+    assert frame.index == 2
+    assert source.frames_corrupt + source.frames_dropped == 2
 
 
 def test_sim_impossible_length_is_a_camera_error(server: CameraServer) -> None:

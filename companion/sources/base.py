@@ -20,6 +20,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Generic, Protocol, TypeVar
 
+import cv2
 import numpy as np
 
 from companion.errors import CompanionError
@@ -27,6 +28,20 @@ from companion.errors import CompanionError
 log = logging.getLogger(__name__)
 
 _JOIN_TIMEOUT_S = 3.0  # how long close() waits for a grabber blocked in the driver
+
+
+def decode_image(data: bytes) -> np.ndarray | None:
+    """The BGR image an encoded JPEG or PNG (any format OpenCV reads) holds, or None.
+
+    None also where OpenCV raises instead of returning nothing: an empty buffer, or a
+    header claiming more pixels than it will allocate (CV_IO_MAX_IMAGE_PIXELS)."""
+    if not data:
+        return None
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:
+        return None
+    return image if image is not None and image.size else None
 
 
 class CameraError(CompanionError):

@@ -20,7 +20,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, EndOfStream, Frame, mono_minus_unix_s
+from companion.sources.base import (
+    CameraError,
+    EndOfStream,
+    Frame,
+    decode_image,
+    mono_minus_unix_s,
+)
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +44,7 @@ def read_frame_file(path: Path) -> tuple[np.ndarray | None, str]:
             return None, "is truncated (no PNG IEND chunk)"
     elif data.rstrip(b"\x00\r\n")[-2:] != b"\xff\xd9":
         return None, "is truncated (no JPEG end marker)"
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    image = decode_image(data)
     if image is None:
         return None, "is not a readable image"
     return image, ""

@@ -16,10 +16,9 @@ import contextlib
 import socket
 import struct
 
-import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, ThreadedSource, mono_minus_unix_s
+from companion.sources.base import CameraError, ThreadedSource, decode_image, mono_minus_unix_s
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 5600
@@ -65,7 +64,7 @@ class SimSource(ThreadedSource[bytes]):
         return body[_STAMP.size :], t_unix_s + mono_minus_unix_s(), t_unix_s
 
     def _decode(self, payload: bytes) -> np.ndarray | None:
-        return cv2.imdecode(np.frombuffer(payload, dtype=np.uint8), cv2.IMREAD_COLOR)
+        return decode_image(payload)
 
     def _interrupt(self) -> None:
         with contextlib.suppress(OSError):  # not connected any more: nothing to unblock
