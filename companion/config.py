@@ -173,8 +173,14 @@ class DetectorConfig:
     # people: the BlazePose landmark model, "full" or "lite" (faster, finds fewer buried
     # people: docs/VISION.md "Which landmark model")
     pose_landmarks: PoseLandmarks = "full"
+    # people: CPU threads each model may use. 1 leaves the Pi's other cores to the link,
+    # camera and video threads; 2 cut a frame from 49 to 33 ms on two cores here
+    # (BENCHMARKS.md real_images), for a Pi that cannot keep its frame rate on one.
+    model_threads: int = 1
 
     def __post_init__(self) -> None:
+        if not 1 <= self.model_threads <= 16:
+            raise ValueError(f"model_threads = {self.model_threads}: must be 1..16")
         if not 0.0 <= self.min_score <= 1.0:
             raise ValueError(f"min_score = {self.min_score}: must be in [0, 1]")
         if self.backend == "dnn" and self.dnn_model is None:

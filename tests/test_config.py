@@ -71,6 +71,7 @@ def test_relative_paths_are_relative_to_the_config_file(tmp_path: Path) -> None:
         ("[geolocation]\nmax_range_m = -1.0\n", "[geolocation] max_range_m = -1.0"),
         ('[vehicle]\nurl = "udp:1.2.3.4"\n', "[vehicle] link 'udp:1.2.3.4'"),
         ('[detector]\nbackend = "yolo"\n', "detector.backend = 'yolo': expected one of"),
+        ("[detector]\nmodel_threads = 0\n", "[detector] model_threads = 0: must be 1..16"),
         ("[signing]\nenabled = true\n", "key_file: required when enabled = true"),
         ("[hq]\ntunnel = 1\n", "hq.tunnel = 1: expected true or false"),
         ("[camera]\nwidth_px = 640\nwidth_px = 320\n", "not valid TOML"),

@@ -202,6 +202,25 @@ def test_the_full_landmark_model_finds_more_buried_people_than_lite(shared_data:
     assert found["lite"] >= 7 and found["full"] >= found["lite"] + 2
 
 
+def test_more_model_threads_find_the_same_people(shared_data: Path) -> None:
+    """``detector.model_threads`` reaches every model; the people found do not change."""
+    root, gt = _falls(shared_data)
+    one, two = (
+        make_detector(DetectorConfig(enhance=False, model_threads=n), single_images=True)
+        for n in (1, 2)
+    )
+    assert isinstance(two, PeopleDetector)
+    models = ("_pose", "_landmarks", "_segment", "_palm", "_face", "_hand")
+    assert [getattr(two, m).threads for m in models] == [2] * len(models)
+    for rel in sorted(gt)[:6]:
+        image = read_image(root / rel)
+        boxes = [
+            np.array([d.bbox_xywh_px for d in det.detect(image, None, 0.0)]) for det in (one, two)
+        ]
+        assert boxes[0].shape == boxes[1].shape and boxes[0].size > 0
+        assert np.abs(boxes[0] - boxes[1]).max() <= 2, rel
+
+
 def test_nothing_in_frames_without_people(detector: PeopleDetector) -> None:
     """Without the real data: images this test makes (flat, noise, a dark frame)."""
     rng = np.random.default_rng(3)

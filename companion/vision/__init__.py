@@ -57,6 +57,7 @@ def make_detector(config: DetectorConfig, single_images: bool = False) -> Detect
             enhancer,
             config.min_score,
             config.model_dir,
+            config.model_threads,
         )
     if config.backend == "classic":
         from companion.vision.classic import ClassicDetector

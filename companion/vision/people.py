@@ -257,18 +257,24 @@ class PeopleDetector:
         enhancer: Enhancer | None = None,
         min_score: float = 0.5,
         model_dir: Path | None = None,
+        threads: int = 1,
     ) -> None:
         self.params = params or PeopleParams()
         self.enhancer = enhancer
         self.min_score = min_score
-        self._pose = Model(models.model_path("pose_detection.tflite", model_dir))
+        self._pose = Model(models.model_path("pose_detection.tflite", model_dir), threads)
         self._landmarks = Model(
-            models.model_path(f"pose_landmark_{self.params.landmarks}.tflite", model_dir)
+            models.model_path(f"pose_landmark_{self.params.landmarks}.tflite", model_dir),
+            threads,
         )
-        self._segment = Model(models.model_path("selfie_segmentation_landscape.tflite", model_dir))
-        self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir))
-        self._face = Model(models.model_path("face_detection_full_range.tflite", model_dir))
-        self._hand = Model(models.model_path("hand_landmark_lite.tflite", model_dir))
+        self._segment = Model(
+            models.model_path("selfie_segmentation_landscape.tflite", model_dir), threads
+        )
+        self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir), threads)
+        self._face = Model(
+            models.model_path("face_detection_full_range.tflite", model_dir), threads
+        )
+        self._hand = Model(models.model_path("hand_landmark_lite.tflite", model_dir), threads)
         self._frame = 0  # extra passes run, for their turns
         self._parts_turn = 0  # frames searched for parts, for the face/palm turns
         self._hand_seen = False  # the last frame had a lone hand: look again, out of turn

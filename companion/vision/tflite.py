@@ -1,8 +1,8 @@
 """Running a ``.tflite`` model on the CPU, and the image crops models expect.
 
 ``Model`` wraps LiteRT's interpreter (pip ``ai-edge-litert``; wheels for aarch64
-and x86-64) on one thread: the Pi's other cores belong to the link and camera
-threads. Inputs are float RGB scaled to the range each model was trained with.
+and x86-64), on one thread by default: the Pi's other cores belong to the link and
+camera threads (``detector.model_threads`` gives it more). Inputs are float RGB scaled to the range each model was trained with.
 
 Two crops: ``letterbox`` (the whole frame padded to a square, as MediaPipe feeds
 its detectors, so people keep their shape) and ``RotatedRect`` (an oriented square
@@ -22,17 +22,18 @@ from companion.vision.base import DetectorUnavailable
 
 
 class Model:
-    """One TFLite model on one CPU thread. Not thread-safe: one per pipeline."""
+    """One TFLite model on ``threads`` CPU threads. Not thread-safe: one per pipeline."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, threads: int = 1) -> None:
         try:
             from ai_edge_litert.interpreter import Interpreter
         except ImportError:
             raise DetectorUnavailable(
                 "the person models need the `ai-edge-litert` package (pip install ai-edge-litert)"
             ) from None
+        self.threads = threads
         try:
-            self._it = Interpreter(model_path=str(path), num_threads=1)
+            self._it = Interpreter(model_path=str(path), num_threads=threads)
             self._it.allocate_tensors()
         except (ValueError, RuntimeError) as exc:
             raise DetectorUnavailable(f"model file {path} cannot be loaded: {exc}") from None
