@@ -180,7 +180,10 @@ def two_threads_ms() -> float | str:
     every = set(range(os.cpu_count() or 1))
     if len(every) < 2 or not hasattr(os, "sched_setaffinity"):
         return "not measured: one CPU"
-    os.sched_setaffinity(0, every)
+    try:
+        os.sched_setaffinity(0, every)
+    except OSError as exc:  # CPUs this process may not use (a container's cpuset)
+        return f"not measured: {exc.strerror}"
     try:
         live = make_detector(DetectorConfig(backend="people", model_threads=2))
         return float(score_falls(live)["ms_median"])

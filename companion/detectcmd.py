@@ -275,7 +275,9 @@ def _detect_video(
             f"{path}: {index} frames, {detected} detected (every {every}), "
             f"{with_people} with detections{ms}"
         )
-    if expected > 0 and index < expected - 1:
+    # Some containers only estimate their frame count (from duration x rate): a few
+    # frames short is not a cut file.
+    if expected > 0 and expected - index > max(1, expected // 50):
         _fail(f"{path}: ended after {index} of the {expected} frames its header gives")
         return False
     return write_ok

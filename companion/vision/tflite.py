@@ -2,7 +2,8 @@
 
 ``Model`` wraps LiteRT's interpreter (pip ``ai-edge-litert``; wheels for aarch64
 and x86-64), on one thread by default: the Pi's other cores belong to the link and
-camera threads (``detector.model_threads`` gives it more). Inputs are float RGB scaled to the range each model was trained with.
+camera threads (``detector.model_threads`` gives it more). Inputs are float RGB
+scaled to the range each model was trained with.
 
 Two crops: ``letterbox`` (the whole frame padded to a square, as MediaPipe feeds
 its detectors, so people keep their shape) and ``RotatedRect`` (an oriented square
