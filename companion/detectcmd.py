@@ -15,9 +15,10 @@ has one object per frame detected, with ``frame`` (its index in the file) and
 ``t_s`` (its time in the video). ``--annotate`` writes the video, annotated, as
 ``DIR/<name>.mp4``.
 
-An unreadable or truncated image, or a video that cannot be opened or ends before
-the frame count its header gives, is named on stderr (an image is skipped, a
-video's decoded frames are kept); the exit status is then 2.
+An unreadable or truncated image, or a video that cannot be opened, has frames
+that do not decode (they are skipped, the frames after them still detected) or
+ends before the frame count its header gives, is named on stderr (an image is
+skipped, a video's decoded frames are kept); the exit status is then 2.
 """
 
 from __future__ import annotations
@@ -207,6 +208,56 @@ def run_detect(
     return 2 if failed else 0
 
 
+# Reads that fail in a row before a video counts as ended: a damaged frame fails
+# alone and the next ones decode again; at the end of the file every read fails.
+_GIVE_UP_AFTER_FAILED_READS = 10
+
+
+def _video_frames(cap: cv2.VideoCapture) -> Iterator[tuple[int, np.ndarray | None]]:
+    """(index, BGR image) for each frame of an open video; None for a frame that did
+    not decode where a later one did."""
+    index = failed = 0
+    while failed < _GIVE_UP_AFTER_FAILED_READS:
+        ok, image = cap.read()
+        if not ok or image is None:
+            failed += 1
+            continue
+        for _ in range(failed):
+            yield index, None
+            index += 1
+        failed = 0
+        yield index, image
+        index += 1
+
+
+class _AnnotatedVideo:
+    """``DIR/<name>.mp4``, opened at the first frame (its size); ``ok`` is False once
+    it could not be opened (said once on stderr)."""
+
+    def __init__(self, target: Path, fps: float) -> None:
+        self.target = target
+        self.fps = fps
+        self.ok = True
+        self._writer: cv2.VideoWriter | None = None
+
+    def write(self, image: np.ndarray, rows: list[dict[str, object]]) -> None:
+        if not self.ok:
+            return
+        if self._writer is None:
+            h, w = image.shape[:2]
+            fourcc = cv2.VideoWriter.fourcc(*"mp4v")
+            self._writer = cv2.VideoWriter(str(self.target), fourcc, self.fps, (w, h))
+            if not self._writer.isOpened():
+                _fail(f"cannot write {self.target}")
+                self.ok = False
+                return
+        self._writer.write(annotate(image, rows))
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+
+
 def _detect_video(
     detector: Detector,
     config: Config | None,
@@ -216,68 +267,66 @@ def _detect_video(
     every: int,
 ) -> bool:
     """Detect on every ``every``-th frame of a video file; False if the file could not
-    be opened, was cut short or its annotated copy could not be written."""
+    be opened, had frames that did not decode, was cut short or its annotated copy
+    could not be written."""
     if not path.is_file():
         _fail(f"{path}: no such file")
         return False
     cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        cap.release()
+        _fail(f"{path}: not a video OpenCV can read")
+        return False
+    fps = float(cap.get(cv2.CAP_PROP_FPS))
+    fps = fps if math.isfinite(fps) and fps > 0.0 else 10.0
+    expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+    copy = (
+        None
+        if annotate_dir is None
+        else _AnnotatedVideo(annotate_dir / (path.stem + ".mp4"), fps / every)
+    )
+    geometry: FrameGeometry | None = None
+    frames = undecodable = with_people = 0
+    times: list[float] = []
     try:
-        if not cap.isOpened():
-            _fail(f"{path}: not a video OpenCV can read")
-            return False
-        fps = float(cap.get(cv2.CAP_PROP_FPS))
-        fps = fps if math.isfinite(fps) and fps > 0.0 else 10.0
-        expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-        writer: cv2.VideoWriter | None = None
-        write_ok = True
-        geometry: FrameGeometry | None = None
-        index = detected = with_people = 0
-        times: list[float] = []
-        while True:
-            ok, image = cap.read()
-            if not ok or image is None:
-                break
-            index += 1
-            if (index - 1) % every:
+        for index, image in _video_frames(cap):
+            frames = index + 1
+            if image is None:
+                undecodable += 1
                 continue
-            h, w = image.shape[:2]
+            if index % every:
+                continue
             if config is not None and geometry is None:
-                geometry = level_geometry(config, w, h)
-            t_s = (index - 1) / fps
+                geometry = level_geometry(config, image.shape[1], image.shape[0])
+            t_s = index / fps
             t0 = time.perf_counter()
             dets = detector.detect(image, geometry, t_s)
             times.append((time.perf_counter() - t0) * 1000.0)
             rows = [describe(d, geometry) for d in dets]
-            detected += 1
             with_people += bool(rows)
-            out.frame(str(path), rows, times[-1], (index - 1, t_s))
-            if annotate_dir is not None and write_ok:
-                if writer is None:
-                    target = annotate_dir / (path.stem + ".mp4")
-                    writer = cv2.VideoWriter(
-                        str(target), cv2.VideoWriter.fourcc(*"mp4v"), fps / every, (w, h)
-                    )
-                    if not writer.isOpened():
-                        _fail(f"cannot write {target}")
-                        write_ok = False
-                if write_ok:
-                    writer.write(annotate(image, rows))
-        if writer is not None:
-            writer.release()
+            out.frame(str(path), rows, times[-1], (index, t_s))
+            if copy is not None:
+                copy.write(image, rows)
     finally:
         cap.release()
-    if index == 0:
+        if copy is not None:
+            copy.close()
+    if frames == 0:
         _fail(f"{path}: no frame OpenCV can decode")
         return False
     if not out.as_json:
         ms = f", median {statistics.median(times):.0f} ms a frame" if times else ""
         print(
-            f"{path}: {index} frames, {detected} detected (every {every}), "
+            f"{path}: {frames} frames, {len(times)} detected (every {every}), "
             f"{with_people} with detections{ms}"
         )
+    ok = copy is None or copy.ok
+    if undecodable:
+        _fail(f"{path}: {undecodable} of its {frames} frames could not be decoded (skipped)")
+        ok = False
     # Some containers only estimate their frame count (from duration x rate): a few
     # frames short is not a cut file.
-    if expected > 0 and expected - index > max(1, expected // 50):
-        _fail(f"{path}: ended after {index} of the {expected} frames its header gives")
-        return False
-    return write_ok
+    if expected > 0 and expected - frames > max(1, expected // 50):
+        _fail(f"{path}: ended after {frames} of the {expected} frames its header gives")
+        ok = False
+    return ok

@@ -153,6 +153,62 @@ def test_a_cut_video_keeps_its_frames_and_is_named(tmp_path: Path) -> None:
     assert str(cut) in done.stderr and "Traceback" not in done.stderr
 
 
+def test_frames_after_a_damaged_one_are_still_detected(tmp_path: Path) -> None:
+    """One frame of an AVI of JPEG frames zeroed: it is skipped and counted, and the
+    six frames after it are detected."""
+    whole = tmp_path / "whole.avi"
+    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter.fourcc(*"MJPG"), 10.0, (160, 120))
+    for i in range(12):
+        writer.write(cv2.resize(_room(i), (160, 120)))
+    writer.release()
+    data = bytearray(whole.read_bytes())
+    starts = [i for i in range(len(data) - 1) if data[i : i + 2] == b"\xff\xd8"]
+    assert len(starts) == 12  # one JPEG per frame
+    end = starts[6] - 8  # up to the next frame's chunk header
+    data[starts[5] : end] = bytes(end - starts[5])
+    damaged = tmp_path / "damaged.avi"
+    damaged.write_bytes(bytes(data))
+    done = _detect("--json", damaged)
+    assert done.returncode == 2
+    assert [d["frame"] for d in _json_lines(done.stdout)] == [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]
+    assert f"{damaged}: 1 of its 12 frames could not be decoded" in done.stderr
+
+
+def test_damaged_video_bytes_are_detected_on_or_named(tmp_path: Path) -> None:
+    """Videos with bytes changed or cut at seeded places (an AVI of JPEG frames and an
+    MP4), all in one run: each file gives JSON lines, is named on stderr, or both;
+    never a traceback, and the run ends."""
+    rng = np.random.default_rng(7)
+    frames = [cv2.resize(_room(i), (160, 120)) for i in range(12)]
+    seeds = {}
+    for suffix, codec in ((".avi", "MJPG"), (".mp4", "mp4v")):
+        path = tmp_path / f"seed{suffix}"
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*codec), 10.0, (160, 120))
+        for f in frames:
+            writer.write(f)
+        writer.release()
+        seeds[suffix] = path.read_bytes()
+    names = []
+    for k in range(16):
+        suffix = (".avi", ".mp4")[k % 2]
+        data = bytearray(seeds[suffix])
+        for where in rng.integers(0, len(data), size=int(rng.integers(1, 40))):
+            data[where] = int(rng.integers(0, 256))
+        if k % 3 == 0:
+            data = data[: int(rng.integers(0, len(data)))]
+        name = f"damaged{k:02d}{suffix}"
+        (tmp_path / name).write_bytes(bytes(data))
+        names.append(name)
+    done = _detect("--json", *(tmp_path / n for n in names))
+    assert done.returncode in (0, 2)
+    assert "Traceback" not in done.stderr
+    printed = {Path(str(d["image"])).name for d in _json_lines(done.stdout)}
+    complaints = [ln for ln in done.stderr.splitlines() if ln.startswith("rescue-companion")]
+    for name in names:
+        assert name in printed or any(name in ln for ln in complaints), name
+    assert done.returncode == (2 if complaints else 0)
+
+
 def test_people_in_the_real_video(shared_data: Path) -> None:
     """The shared video: a room, empty at first, then people walking in one at a time."""
     video = shared_data / "video" / "intel_one-by-one-person-detection.mp4"
