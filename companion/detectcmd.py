@@ -37,6 +37,7 @@ import numpy as np
 from companion.config import Config, DetectorConfig
 from companion.errors import CompanionError
 from companion.sources.base import decode_image
+from companion.sources.opencv import video_frames
 from companion.vision import Detector, FrameGeometry, assess, make_detector
 from fusion.types import Detection, PoseSample, Urgency
 
@@ -208,28 +209,6 @@ def run_detect(
     return 2 if failed else 0
 
 
-# Reads that fail in a row before a video counts as ended: a damaged frame fails
-# alone and the next ones decode again; at the end of the file every read fails.
-_GIVE_UP_AFTER_FAILED_READS = 10
-
-
-def _video_frames(cap: cv2.VideoCapture) -> Iterator[tuple[int, np.ndarray | None]]:
-    """(index, BGR image) for each frame of an open video; None for a frame that did
-    not decode where a later one did."""
-    index = failed = 0
-    while failed < _GIVE_UP_AFTER_FAILED_READS:
-        ok, image = cap.read()
-        if not ok or image is None:
-            failed += 1
-            continue
-        for _ in range(failed):
-            yield index, None
-            index += 1
-        failed = 0
-        yield index, image
-        index += 1
-
-
 class _AnnotatedVideo:
     """``DIR/<name>.mp4``, opened at the first frame (its size); ``ok`` is False once
     it could not be opened (said once on stderr)."""
@@ -289,7 +268,7 @@ def _detect_video(
     frames = undecodable = with_people = 0
     times: list[float] = []
     try:
-        for index, image in _video_frames(cap):
+        for index, image in video_frames(cap):
             frames = index + 1
             if image is None:
                 undecodable += 1

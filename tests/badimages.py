@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 
@@ -13,3 +15,19 @@ def huge_jpeg() -> bytes:
     sof = data.find(b"\xff\xc0")  # baseline start-of-frame: length, precision, height, width
     data[sof + 5 : sof + 9] = (65000).to_bytes(2, "big") * 2
     return bytes(data)
+
+
+def avi_with_a_damaged_frame(path: Path, frames: list[np.ndarray], damaged: int) -> None:
+    """An AVI of JPEG frames (MJPG) whose frame ``damaged`` is zeroed: OpenCV fails to
+    read that frame alone and reads the ones after it."""
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), 10.0, (w, h))
+    for f in frames:
+        writer.write(f)
+    writer.release()
+    data = bytearray(path.read_bytes())
+    starts = [i for i in range(len(data) - 1) if data[i : i + 2] == b"\xff\xd8"]
+    assert len(starts) == len(frames)  # one JPEG per frame
+    end = starts[damaged + 1] - 8 if damaged + 1 < len(starts) else len(data)
+    data[starts[damaged] : end] = bytes(end - starts[damaged])
+    path.write_bytes(bytes(data))

@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from companion.detectcmd import run_detect
-from tests.badimages import huge_jpeg
+from tests.badimages import avi_with_a_damaged_frame, huge_jpeg
 
 URGENCIES = {"LIGHT", "MEDIUM", "CRITICAL", None}
 DETECTION_KEYS = {"box", "score", "cues", "visibility_pct", "urgency"}
@@ -156,18 +156,8 @@ def test_a_cut_video_keeps_its_frames_and_is_named(tmp_path: Path) -> None:
 def test_frames_after_a_damaged_one_are_still_detected(tmp_path: Path) -> None:
     """One frame of an AVI of JPEG frames zeroed: it is skipped and counted, and the
     six frames after it are detected."""
-    whole = tmp_path / "whole.avi"
-    writer = cv2.VideoWriter(str(whole), cv2.VideoWriter.fourcc(*"MJPG"), 10.0, (160, 120))
-    for i in range(12):
-        writer.write(cv2.resize(_room(i), (160, 120)))
-    writer.release()
-    data = bytearray(whole.read_bytes())
-    starts = [i for i in range(len(data) - 1) if data[i : i + 2] == b"\xff\xd8"]
-    assert len(starts) == 12  # one JPEG per frame
-    end = starts[6] - 8  # up to the next frame's chunk header
-    data[starts[5] : end] = bytes(end - starts[5])
     damaged = tmp_path / "damaged.avi"
-    damaged.write_bytes(bytes(data))
+    avi_with_a_damaged_frame(damaged, [cv2.resize(_room(i), (160, 120)) for i in range(12)], 5)
     done = _detect("--json", damaged)
     assert done.returncode == 2
     assert [d["frame"] for d in _json_lines(done.stdout)] == [0, 1, 2, 3, 4, 6, 7, 8, 9, 10, 11]

@@ -27,7 +27,7 @@ from companion.sources import (
     write_frame,
 )
 from companion.sources.sim import SimSource
-from tests.badimages import huge_jpeg
+from tests.badimages import avi_with_a_damaged_frame, huge_jpeg
 
 # Clock mapping: time.time() and time.monotonic() are sampled a few microseconds
 # apart; 50 ms allows for a loaded 2-core test machine between the two samples.
@@ -74,6 +74,23 @@ def test_video_file_frames_timestamps_and_end(tmp_path: Path) -> None:
     assert np.allclose(np.diff([f.t_mono_s for f in frames]), 0.1, atol=1e-9)
     assert np.allclose(np.diff([f.t_unix_s for f in frames]), 0.1, atol=1e-9)
     assert before <= frames[0].t_mono_s <= time.monotonic()
+
+
+def test_a_damaged_frame_is_skipped_and_the_video_goes_on(tmp_path: Path) -> None:
+    """The frames after a damaged one are read, at their own times; the damaged one is
+    counted. Before, a damaged frame ended the video as if it were its last."""
+    path = tmp_path / "damaged.avi"
+    avi_with_a_damaged_frame(path, [_marked(i) for i in range(8)], 3)
+    source = open_source(CameraConfig(source=f"file:{path}"))
+    frames = []
+    with pytest.raises(EndOfStream, match="after 8 frames"):
+        while True:
+            frames.append(source.read(0.0))
+    source.close()
+    assert [f.index for f in frames] == [0, 1, 2, 4, 5, 6, 7]
+    assert [_mark_of(f.image) for f in frames] == [0, 1, 2, 4, 5, 6, 7]
+    assert frames[3].t_unix_s - frames[0].t_unix_s == pytest.approx(0.4)  # 4 frames at 10/s
+    assert source.frames_corrupt == 1
 
 
 def test_missing_or_unreadable_file_is_a_camera_error(tmp_path: Path) -> None:

@@ -5,7 +5,9 @@
   (RTSP/HTTP through FFmpeg). Frames are stamped when the driver hands them over.
 - ``VideoFileSource``: a video file, read as fast as asked. Its capture times are
   synthetic: the time of opening plus ``index / fps`` (the file's frame rate, or the
-  configured one when the file has none), on both clocks.
+  configured one when the file has none), on both clocks. A damaged frame is
+  skipped and counted (``frames_corrupt``); the frames after it are read
+  (``video_frames``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -21,6 +24,28 @@ import numpy as np
 from companion.sources.base import CameraError, EndOfStream, Frame, ThreadedSource
 
 log = logging.getLogger(__name__)
+
+
+# Reads that fail in a row before a video counts as ended: a damaged frame fails
+# alone and the next ones decode again; at the end of the file every read fails.
+_GIVE_UP_AFTER_FAILED_READS = 10
+
+
+def video_frames(cap: cv2.VideoCapture) -> Iterator[tuple[int, np.ndarray | None]]:
+    """(index in the file, image) for each frame of an open video file; None for a
+    frame that did not decode where a later one did."""
+    index = failed = 0
+    while failed < _GIVE_UP_AFTER_FAILED_READS:
+        ok, image = cap.read()
+        if not ok or image is None:
+            failed += 1
+            continue
+        for _ in range(failed):
+            yield index, None
+            index += 1
+        failed = 0
+        yield index, image
+        index += 1
 
 
 def _has_backend(name: str) -> bool:
@@ -101,19 +126,23 @@ class VideoFileSource:
         self.fps = fps if math.isfinite(fps) and fps > 0.0 else fallback_fps
         self._t0_mono_s = time.monotonic()
         self._t0_unix_s = time.time()
-        self._index = 0
+        self._frames = video_frames(self._cap)
+        self._count = 0  # frames of the file read so far, damaged ones included
+        self.frames_corrupt = 0
         self._closed = False
 
     def read(self, timeout_s: float) -> Frame:
         if self._closed:
             raise CameraError(f"{self.name}: closed")
-        ok, image = self._cap.read()
-        if not ok or image is None:
-            raise EndOfStream(f"{self.name}: end of file after {self._index} frames")
-        dt_s = self._index / self.fps
-        frame = Frame(_as_bgr(image), self._t0_mono_s + dt_s, self._t0_unix_s + dt_s, self._index)
-        self._index += 1
-        return frame
+        for index, image in self._frames:
+            self._count = index + 1
+            if image is None:
+                self.frames_corrupt += 1
+                log.warning("%s: frame %d could not be decoded; skipped", self.name, index)
+                continue
+            dt_s = index / self.fps
+            return Frame(_as_bgr(image), self._t0_mono_s + dt_s, self._t0_unix_s + dt_s, index)
+        raise EndOfStream(f"{self.name}: end of file after {self._count} frames")
 
     def close(self) -> None:
         if not self._closed:
