@@ -421,7 +421,8 @@ def config_from_dict(data: dict[str, Any], base_dir: Path = Path(".")) -> Config
     unknown = sorted(set(data) - {f.name for f in dataclasses.fields(Config)})
     if unknown:
         allowed = ", ".join(f.name for f in dataclasses.fields(Config))
-        raise ConfigError(f"unknown section [{unknown[0]}]; allowed sections: {allowed}")
+        name = unknown[0] if unknown[0].isprintable() else repr(unknown[0])  # one line
+        raise ConfigError(f"unknown section [{name}]; allowed sections: {allowed}")
     hints = typing.get_type_hints(Config)
     sections: dict[str, Any] = {}
     for name, value in data.items():
