@@ -1,4 +1,5 @@
-"""Encoded images that OpenCV refuses by raising rather than by returning None."""
+"""Damaged images and videos for the input tests: what OpenCV refuses by raising
+rather than returning None, and a video whose one frame does not decode."""
 
 from __future__ import annotations
 
