@@ -20,12 +20,12 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 Cov2 = tuple[tuple[float, float], tuple[float, float]]
+"""A 2x2 covariance in m^2 as nested tuples (hashable, immutable)."""
 
 # How far from the EKF origin a local NED position can lie: a search area, not a
 # continent. Beyond it a value is corrupt or forged, wherever it enters (a vehicle
 # message, a report, a saved state).
 MAX_LOCAL_M = 100_000.0
-"""A 2x2 covariance in m^2 as nested tuples (hashable, immutable)."""
 
 
 class Urgency(IntEnum):
