@@ -24,7 +24,6 @@ skipped, a video's decoded frames are kept); the exit status is then 2.
 from __future__ import annotations
 
 import json
-import math
 import statistics
 import sys
 import time
@@ -36,8 +35,8 @@ import numpy as np
 
 from companion.config import Config, DetectorConfig
 from companion.errors import CompanionError
-from companion.sources.base import decode_image
-from companion.sources.opencv import video_frames
+from companion.sources.base import CameraError, EndOfStream, decode_image
+from companion.sources.opencv import VideoFileSource
 from companion.vision import Detector, FrameGeometry, assess, make_detector
 from fusion.types import Detection, PoseSample, Urgency
 
@@ -248,48 +247,44 @@ def _detect_video(
     """Detect on every ``every``-th frame of a video file; False if the file could not
     be opened, had frames that did not decode, was cut short or its annotated copy
     could not be written."""
-    if not path.is_file():
-        _fail(f"{path}: no such file")
+    try:
+        source = VideoFileSource(path, fallback_fps=10.0)
+    except CameraError as exc:
+        _fail(str(exc))
         return False
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        cap.release()
-        _fail(f"{path}: not a video OpenCV can read")
-        return False
-    fps = float(cap.get(cv2.CAP_PROP_FPS))
-    fps = fps if math.isfinite(fps) and fps > 0.0 else 10.0
-    expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
     copy = (
         None
         if annotate_dir is None
-        else _AnnotatedVideo(annotate_dir / (path.stem + ".mp4"), fps / every)
+        else _AnnotatedVideo(annotate_dir / (path.stem + ".mp4"), source.fps / every)
     )
     geometry: FrameGeometry | None = None
-    frames = undecodable = with_people = 0
+    with_people = 0
     times: list[float] = []
     try:
-        for index, image in video_frames(cap):
-            frames = index + 1
-            if image is None:
-                undecodable += 1
+        while True:
+            try:
+                frame = source.read(0.0)
+            except EndOfStream:
+                break
+            if frame.index % every:
                 continue
-            if index % every:
-                continue
+            image = frame.image
             if config is not None and geometry is None:
                 geometry = level_geometry(config, image.shape[1], image.shape[0])
-            t_s = index / fps
+            t_s = frame.index / source.fps
             t0 = time.perf_counter()
             dets = detector.detect(image, geometry, t_s)
             times.append((time.perf_counter() - t0) * 1000.0)
             rows = [describe(d, geometry) for d in dets]
             with_people += bool(rows)
-            out.frame(str(path), rows, times[-1], (index, t_s))
+            out.frame(str(path), rows, times[-1], (frame.index, t_s))
             if copy is not None:
                 copy.write(image, rows)
     finally:
-        cap.release()
+        source.close()
         if copy is not None:
             copy.close()
+    frames, expected = source.frames_read, source.frames_in_header
     if frames == 0:
         _fail(f"{path}: no frame OpenCV can decode")
         return False
@@ -300,8 +295,10 @@ def _detect_video(
             f"{with_people} with detections{ms}"
         )
     ok = copy is None or copy.ok
-    if undecodable:
-        _fail(f"{path}: {undecodable} of its {frames} frames could not be decoded (skipped)")
+    if source.frames_corrupt:
+        _fail(
+            f"{path}: {source.frames_corrupt} of its {frames} frames could not be decoded (skipped)"
+        )
         ok = False
     # Some containers only estimate their frame count (from duration x rate): a few
     # frames short is not a cut file.

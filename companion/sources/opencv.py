@@ -124,10 +124,12 @@ class VideoFileSource:
             raise CameraError(f"{self.name}: not a video OpenCV can read")
         fps = float(self._cap.get(cv2.CAP_PROP_FPS))
         self.fps = fps if math.isfinite(fps) and fps > 0.0 else fallback_fps
+        # The frame count the file's header gives (0: none; some containers estimate it).
+        self.frames_in_header = max(0, int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0))
         self._t0_mono_s = time.monotonic()
         self._t0_unix_s = time.time()
         self._frames = video_frames(self._cap)
-        self._count = 0  # frames of the file read so far, damaged ones included
+        self.frames_read = 0  # frames of the file read so far, damaged ones included
         self.frames_corrupt = 0
         self._closed = False
 
@@ -135,14 +137,14 @@ class VideoFileSource:
         if self._closed:
             raise CameraError(f"{self.name}: closed")
         for index, image in self._frames:
-            self._count = index + 1
+            self.frames_read = index + 1
             if image is None:
                 self.frames_corrupt += 1
                 log.warning("%s: frame %d could not be decoded; skipped", self.name, index)
                 continue
             dt_s = index / self.fps
             return Frame(_as_bgr(image), self._t0_mono_s + dt_s, self._t0_unix_s + dt_s, index)
-        raise EndOfStream(f"{self.name}: end of file after {self._count} frames")
+        raise EndOfStream(f"{self.name}: end of file after {self.frames_read} frames")
 
     def close(self) -> None:
         if not self._closed:
