@@ -50,7 +50,7 @@ typecheck: $(STAMP)
 	$(BIN)/mypy companion mavlink_io fusion scenarios hq npmfetch
 
 pytest: $(STAMP) $(MODELS)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 bench: $(STAMP) $(MODELS)
 	$(BIN)/python -m bench
