@@ -33,6 +33,7 @@ RGB = tuple[int, int, int]
 PointNE = tuple[float, float]
 
 VISIBILITY_RES_M = 0.0025  # raster cell of the ground-truth visibility
+MAX_COORD_M = 1000.0  # no point of a world lies farther from its origin (the floor: 200)
 PRESETS: tuple[str, ...] = (
     "empty",
     "light",
@@ -98,8 +99,10 @@ class Debris:
         _check_rgb(self.colour_rgb, f"debris ({self.kind}).colour")
         if len(self.polygon_ne_m) < 3:
             raise WorldError(f"debris ({self.kind}).polygon_ne_m needs at least 3 points")
-        if not all(math.isfinite(v) for p in self.polygon_ne_m for v in p):
-            raise WorldError(f"debris ({self.kind}).polygon_ne_m must be finite numbers")
+        if not all(abs(v) <= MAX_COORD_M for p in self.polygon_ne_m for v in p):
+            raise WorldError(
+                f"debris ({self.kind}).polygon_ne_m must be numbers within +-{MAX_COORD_M:g} m"
+            )
 
     @classmethod
     def box(
@@ -161,8 +164,16 @@ class LightZone:
     def __post_init__(self) -> None:
         if not 0.0 < self.light <= 1.0:
             raise WorldError(f"light_zones.light = {self.light}: must be in (0, 1]")
-        if self.radius_m <= 0 or self.edge_m < 0:
-            raise WorldError("light_zones: radius_m must be > 0 and edge_m >= 0")
+        if not (0 < self.radius_m <= MAX_COORD_M and 0 <= self.edge_m <= MAX_COORD_M):
+            raise WorldError(
+                f"light_zones: radius_m must be in (0, {MAX_COORD_M:g}] and edge_m in "
+                f"[0, {MAX_COORD_M:g}]"
+            )
+        if not (abs(self.north_m) <= MAX_COORD_M and abs(self.east_m) <= MAX_COORD_M):
+            raise WorldError(
+                f"light_zones: centre ({self.north_m}, {self.east_m}) must lie within "
+                f"+-{MAX_COORD_M:g} m"
+            )
 
 
 @dataclass(frozen=True)
@@ -326,6 +337,14 @@ class World:
         n, e = self.size_m
         if not (0 < n <= 200 and 0 < e <= 200):
             raise WorldError(f"size_m = {list(self.size_m)}: both extents must be in (0, 200]")
+        if self.seed < 0:
+            raise WorldError(f"seed = {self.seed}: must be >= 0")
+        for what, points in (("start_ne_m", (self.start_ne_m,)), ("route_ne_m", self.route_ne_m)):
+            for pn, pe in points:
+                if not (0 <= pn <= n and 0 <= pe <= e):
+                    raise WorldError(f"{what}: ({pn}, {pe}) is off the floor")
+        if not math.isfinite(self.start_heading_rad):
+            raise WorldError(f"start_heading = {self.start_heading_rad}: must be a finite angle")
         ids = [v.victim_id for v in self.victims]
         if len(set(ids)) != len(ids):
             raise WorldError(f"victims: duplicate victim_id in {ids}")

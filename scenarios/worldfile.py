@@ -86,9 +86,8 @@ class _Table:
             raise WorldError(f"{where}: expected a table")
         unknown = sorted(set(data) - allowed)
         if unknown:
-            raise WorldError(
-                f"{where}.{unknown[0]}: unknown key; allowed: {', '.join(sorted(allowed))}"
-            )
+            name = unknown[0] if unknown[0].isprintable() else repr(unknown[0])  # one line
+            raise WorldError(f"{where}.{name}: unknown key; allowed: {', '.join(sorted(allowed))}")
         self.data, self.where = data, where
 
     def _get(self, key: str, default: Any, check: Callable[[Any], bool], what: str) -> Any:
@@ -197,6 +196,17 @@ def _victim(t: _Table) -> Victim:
 
 
 def world_from_dict(data: dict[str, Any], where: str = "world") -> World:
+    """The World a parsed world file describes; WorldError naming ``where`` (the file)
+    and the key or table at fault."""
+    try:
+        return _world(data, where)
+    except WorldError as exc:
+        if str(exc).startswith(where):
+            raise
+        raise WorldError(f"{where}: {exc}") from None
+
+
+def _world(data: dict[str, Any], where: str) -> World:
     top = _Table(data, where, _TOP_KEYS)
     fmt = top.text("format", FORMAT)
     if fmt != FORMAT:

@@ -173,6 +173,15 @@ def test_save_and_load_round_trip(tmp_path: Path) -> None:
             "victims[1].sleeves = 'none': one of long, short",
         ),
         ("size_m = [12.0, 8.0", "not valid TOML"),
+        # Values the dataclasses refuse are named with the file too (they were not).
+        ("[floor]\ntexture_contrast = 2.0", "floor.texture_contrast = 2.0: must be in [0, 1]"),
+        ("seed = -1", "seed = -1: must be >= 0"),
+        ("start_ne_m = [50.0, 1.0]", "start_ne_m: (50.0, 1.0) is off the floor"),
+        ("route_ne_m = [[1.0, 1.0], [nan, 2.0]]", "route_ne_m: (nan, 2.0) is off the floor"),
+        (
+            "[[light_zones]]\nnorth_m = 1e308\neast_m = 1.0\nradius_m = 1.0\nlight = 0.5",
+            "must lie within +-1000 m",
+        ),
     ],
 )
 def test_bad_world_file_names_the_key(tmp_path: Path, text: str, needle: str) -> None:
