@@ -19,7 +19,7 @@ import json
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from mavlink_io.errors import LinkError
@@ -32,10 +32,51 @@ EXIT_USAGE = 2
 log = logging.getLogger(__name__)
 
 
+def _number(low: float, high: float, low_open: bool = True) -> Callable[[str], float]:
+    """argparse type: a number in (low, high] (or [low, high] with ``low_open`` False)."""
+    bounds = f"{'(' if low_open else '['}{low:g}, {high:g}]"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not ((low < value if low_open else low <= value) and value <= high):
+            raise argparse.ArgumentTypeError(f"{text!r} is outside {bounds}")
+        return value
+
+    return parse
+
+
+def _seed(text: str) -> int:
+    """argparse type: a world seed, a whole number >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return value
+
+
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a TCP port 1..65535, got {text!r}")
+    return value
+
+
+_DURATION_S = _number(0.0, 1e6)
+_SPEED_M_S = _number(0.0, 5.0)
+
+
 def _world_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     g = p.add_mutually_exclusive_group(required=required)
     g.add_argument("--preset", choices=PRESETS, help="one of the seven scenarios")
-    g.add_argument("--seed", type=int, help="a generated mixed world")
+    g.add_argument("--seed", type=_seed, help="a generated mixed world")
     g.add_argument("--world", type=Path, help="a world TOML file")
 
 
@@ -63,16 +104,18 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("record", help="record a mission (tlog, frames, camera, truth)")
     _world_args(r)
     r.add_argument("--out", type=Path, required=True, help="output directory")
-    r.add_argument("--duration-s", type=float, help="default: the whole route")
-    r.add_argument("--fps", type=float, default=10.0)
+    r.add_argument("--duration-s", type=_DURATION_S, help="default: the whole route")
+    r.add_argument("--fps", type=_number(0.0, 60.0), default=10.0)
     r.add_argument(
-        "--start-unix-s", type=float, help="wall time of simulation start (default: now)"
+        "--start-unix-s",
+        type=_number(0.0, 4e9, low_open=False),
+        help="wall time of simulation start (default: now)",
     )
 
     s = sub.add_parser("score", help="score a victim report against the ground truth")
     s.add_argument("--truth", type=Path, required=True, help="ground_truth.json")
     s.add_argument("--victims", type=Path, required=True, help="REPORT.json")
-    s.add_argument("--gate-m", type=float, default=1.0)
+    s.add_argument("--gate-m", type=_number(0.0, 100.0), default=1.0)
     s.add_argument("--json", action="store_true", help="print the figures as JSON")
 
     c = sub.add_parser("sheet", help="a PNG contact sheet: map, route, victims, frames")
@@ -82,10 +125,10 @@ def _parser() -> argparse.ArgumentParser:
     v = sub.add_parser("rover", help="run the simulated rover (and camera) live")
     _world_args(v)
     v.add_argument("--link", action="append", required=True, help="udpin:H:P, tcpin:H:P, ..., pty")
-    v.add_argument("--camera-port", type=int, help="serve camera frames on this TCP port")
+    v.add_argument("--camera-port", type=_port, help="serve camera frames on this TCP port")
     v.add_argument("--camera-host", default="127.0.0.1")
-    v.add_argument("--time-scale", type=float, default=1.0)
-    v.add_argument("--speed-m-s", type=float, default=0.4)
+    v.add_argument("--time-scale", type=_number(0.0, 100.0), default=1.0)
+    v.add_argument("--speed-m-s", type=_SPEED_M_S, default=0.4)
     d = sub.add_parser(
         "demo",
         help="a simulated mission through the companion's pipeline to a real rescue-hq, "
@@ -93,10 +136,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     _world_args(d, required=False)
     d.add_argument("--out", type=Path, default=Path("demo-out"), help="logs, map, exports")
-    d.add_argument("--duration-s", type=float, help="default: the whole route")
+    d.add_argument("--duration-s", type=_DURATION_S, help="default: the whole route")
     # As the scenario suite's missions drive (scenarios.record): at 0.6 m/s and 5
     # frames/s the arm out of the rubble was in view on too few frames to confirm.
-    d.add_argument("--speed-m-s", type=float, default=0.4)
+    d.add_argument("--speed-m-s", type=_SPEED_M_S, default=0.4)
     d.add_argument(
         "--resume",
         action="store_true",

@@ -25,6 +25,7 @@ from companion.config import config_from_dict
 from fusion.types import Urgency
 from scenarios.camera import default_camera
 from scenarios.camserver import HEADER, CameraServer
+from scenarios.cli import main
 from scenarios.motion import Trajectory, TruePose, route_of
 from scenarios.record import record
 from scenarios.render import Renderer
@@ -445,3 +446,30 @@ def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["world", "--seed", "-3"], "--seed: expected a whole number >= 0, got '-3'"),
+        (["world", "--seed", "x"], "--seed"),
+        (["record", "--preset", "light", "--out", "o", "--fps", "0"], "--fps: '0' is outside"),
+        (["record", "--preset", "light", "--out", "o", "--fps", "nan"], "--fps: 'nan'"),
+        (["record", "--preset", "light", "--out", "o", "--duration-s", "-5"], "--duration-s"),
+        (["record", "--preset", "light", "--out", "o", "--start-unix-s", "-1"], "--start-unix"),
+        (["score", "--truth", "t", "--victims", "v", "--gate-m", "0"], "--gate-m: '0'"),
+        (["rover", "--preset", "light", "--link", "pty", "--time-scale", "inf"], "--time-scale"),
+        (["rover", "--preset", "light", "--link", "pty", "--camera-port", "0"], "--camera-port"),
+        (["demo", "--speed-m-s", "0"], "--speed-m-s: '0' is outside (0, 5]"),
+        (["demo", "--duration-s", "inf"], "--duration-s: 'inf'"),
+    ],
+)
+def test_cli_refuses_numbers_no_mission_can_use(
+    args: list[str], needle: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A zero frame rate, a negative seed or duration, a NaN ended in a traceback (a
+    division by zero, numpy's seed check, an empty tlog); argparse now names them."""
+    with pytest.raises(SystemExit) as done:
+        main(args)
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and needle in err and "Traceback" not in err, err
