@@ -60,12 +60,13 @@ def _seed(text: str) -> int:
 
 
 def _port(text: str) -> int:
+    """argparse type: a TCP port, 0 for any free one."""
     try:
         value = int(text)
     except ValueError:
-        value = 0
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a TCP port 1..65535, got {text!r}")
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a TCP port 0..65535, got {text!r}")
     return value
 
 
@@ -125,7 +126,9 @@ def _parser() -> argparse.ArgumentParser:
     v = sub.add_parser("rover", help="run the simulated rover (and camera) live")
     _world_args(v)
     v.add_argument("--link", action="append", required=True, help="udpin:H:P, tcpin:H:P, ..., pty")
-    v.add_argument("--camera-port", type=_port, help="serve camera frames on this TCP port")
+    v.add_argument(
+        "--camera-port", type=_port, help="serve camera frames on this TCP port (0: any free one)"
+    )
     v.add_argument("--camera-host", default="127.0.0.1")
     v.add_argument("--time-scale", type=_number(0.0, 100.0), default=1.0)
     v.add_argument("--speed-m-s", type=_SPEED_M_S, default=0.4)

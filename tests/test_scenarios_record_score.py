@@ -459,7 +459,10 @@ def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
         (["record", "--preset", "light", "--out", "o", "--start-unix-s", "-1"], "--start-unix"),
         (["score", "--truth", "t", "--victims", "v", "--gate-m", "0"], "--gate-m: '0'"),
         (["rover", "--preset", "light", "--link", "pty", "--time-scale", "inf"], "--time-scale"),
-        (["rover", "--preset", "light", "--link", "pty", "--camera-port", "0"], "--camera-port"),
+        (
+            ["rover", "--preset", "light", "--link", "pty", "--camera-port", "70000"],
+            "--camera-port",
+        ),
         (["demo", "--speed-m-s", "0"], "--speed-m-s: '0' is outside (0, 5]"),
         (["demo", "--duration-s", "inf"], "--duration-s: 'inf'"),
     ],
