@@ -46,6 +46,9 @@ from scenarios.errors import SimError
 from scenarios.world import World
 
 GATE_M = 1.0
+# The largest position (m) or time (unix s) a file may hold: 1e10 s is the year 2286;
+# beyond it differences of such values overflow to infinity in the figures.
+MAX_VALUE = 1e10
 CHI2_95_2DOF = 5.991
 
 
@@ -293,6 +296,8 @@ def _field(item: dict[str, Any], key: str, where: str, kind: type, optional: boo
         ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
     if not ok:
         raise ScoreInputError(f"{where}.{key} = {value!r}: expected {kind.__name__}")
+    if kind is float and not -MAX_VALUE <= value <= MAX_VALUE:
+        raise ScoreInputError(f"{where}.{key} = {value!r}: outside +-{MAX_VALUE:g}")
     return float(value) if kind is float else value
 
 
@@ -363,8 +368,15 @@ def _covariance(
         out = ((float(a), float(b)), (float(c), float(d)))
     except (TypeError, ValueError):
         out = None
-    if out is None or not all(math.isfinite(x) for row in out for x in row):
-        raise ScoreInputError(f"{where}.cov_ne_m2 = {cov!r}: expected a finite 2x2 list")
+    if out is None or not all(abs(x) <= MAX_VALUE for row in out for x in row):
+        raise ScoreInputError(
+            f"{where}.cov_ne_m2 = {cov!r}: expected a 2x2 list of numbers within +-{MAX_VALUE:g}"
+        )
+    (a, b), (c, d) = out
+    if not (a > 0.0 and d > 0.0 and abs(b - c) <= 1e-6 * (a + d) and a * d - b * c > 0.0):
+        raise ScoreInputError(
+            f"{where}.cov_ne_m2 = {cov!r}: not a covariance (symmetric, positive definite)"
+        )
     return out
 
 
