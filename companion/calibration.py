@@ -78,20 +78,13 @@ def read_calibration(path: Path) -> Intrinsics:
     """Intrinsics from an OpenCV or ROS calibration file; ConfigError if unusable."""
     fs = _open(path)
     try:
-        root = fs.root()
-        k = next(
-            (m for key in _MATRIX_KEYS if (m := _read_matrix(root.getNode(key))) is not None), None
-        )
-        if k is None or k.size != 9:
-            raise ConfigError(
-                f"camera.calibration_file {str(path)!r}: no 3x3 camera_matrix (looked for {', '.join(_MATRIX_KEYS)})"
-            )
-        d = next(
-            (m for key in _DIST_KEYS if (m := _read_matrix(root.getNode(key))) is not None),
-            np.zeros(5),
-        )
-        width = root.getNode("image_width").real()
-        height = root.getNode("image_height").real()
+        k, d, width, height = _read_nodes(fs, path)
+    except cv2.error as exc:  # a node of the wrong kind (a cut file: "camera_matrix:" alone)
+        lines = [ln for ln in str(exc).splitlines() if ln.strip()]
+        raise ConfigError(
+            f"camera.calibration_file {str(path)!r}: not a usable calibration "
+            f"({lines[-1].strip() if lines else 'unreadable node'})"
+        ) from None
     finally:
         fs.release()
     if d.size not in (4, 5, 8, 12, 14) or (d.size > 5 and np.any(d[5:] != 0)):
@@ -100,13 +93,32 @@ def read_calibration(path: Path) -> Intrinsics:
         )
     dist = _dist5(d)
     fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
-    if not (width > 0 and height > 0):
-        # Without a stated size, assume the principal point is near the centre.
-        width, height = round(2 * cx + 1), round(2 * cy + 1)
     try:
+        if not (width > 0 and height > 0):
+            # Without a stated size, assume the principal point is near the centre.
+            width, height = round(2 * cx + 1), round(2 * cy + 1)
         return Intrinsics(int(width), int(height), fx, fy, cx, cy, dist)
-    except ValueError as exc:
+    except (ValueError, OverflowError) as exc:  # NaN or infinite sizes and centres
         raise ConfigError(f"camera.calibration_file {str(path)!r}: {exc}") from None
+
+
+def _read_nodes(fs: cv2.FileStorage, path: Path) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The camera matrix (9 values), distortion, and stated image size (0 if none)."""
+    root = fs.root()
+    k = next(
+        (m for key in _MATRIX_KEYS if (m := _read_matrix(root.getNode(key))) is not None), None
+    )
+    if k is None or k.size != 9:
+        raise ConfigError(
+            f"camera.calibration_file {str(path)!r}: no 3x3 camera_matrix (looked for {', '.join(_MATRIX_KEYS)})"
+        )
+    d = next(
+        (m for key in _DIST_KEYS if (m := _read_matrix(root.getNode(key))) is not None),
+        np.zeros(5),
+    )
+    width = root.getNode("image_width").real()
+    height = root.getNode("image_height").real()
+    return k, d, width, height
 
 
 def camera_model(cam: CameraConfig) -> CameraModel:
@@ -122,7 +134,12 @@ def camera_model(cam: CameraConfig) -> CameraModel:
                     f"{intr.width_px}x{intr.height_px}, whose aspect differs from the configured "
                     f"{cam.width_px}x{cam.height_px}"
                 )
-            intr = intr.scaled(cam.width_px, cam.height_px)
+            try:
+                intr = intr.scaled(cam.width_px, cam.height_px)
+            except ValueError as exc:  # a focal length near the float limit overflows
+                raise ConfigError(
+                    f"camera.calibration_file {str(cam.calibration_file)!r}: {exc}"
+                ) from None
     elif cam.fx_px > 0:
         cx = cam.cx_px if cam.cx_px > 0 else (cam.width_px - 1) / 2.0
         cy = cam.cy_px if cam.cy_px > 0 else (cam.height_px - 1) / 2.0
