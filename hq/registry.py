@@ -30,6 +30,7 @@ from hq import epoch, merge, registry_rows
 from hq.merge import Origins, Placed, placed
 from hq.records import (
     Action,
+    BadRecord,
     IncomingReport,
     OperatorAction,
     Robot,
@@ -316,7 +317,8 @@ class Registry:
                 "INSERT INTO pictures (robot_sysid, victim_id, picture_id, received_unix_s, jpeg)"
                 " VALUES (?, ?, ?, ?, ?) ON CONFLICT (robot_sysid, victim_id) DO UPDATE SET"
                 " picture_id=excluded.picture_id, received_unix_s=excluded.received_unix_s,"
-                " jpeg=excluded.jpeg WHERE excluded.picture_id > pictures.picture_id",
+                " jpeg=excluded.jpeg WHERE excluded.picture_id > pictures.picture_id"
+                " OR typeof(pictures.picture_id) != 'integer'",  # a damaged row is replaced
                 (robot_sysid, victim_id, picture_id, now_unix_s, jpeg),
             )
         return cur.rowcount == 1
@@ -327,14 +329,17 @@ class Registry:
             "SELECT picture_id FROM pictures WHERE robot_sysid=? AND victim_id=?",
             (robot_sysid, victim_id),
         ).fetchone()
-        return None if row is None else int(row[0])
+        if row is None:
+            return None
+        try:
+            return registry_rows.cell_int(row[0])
+        except BadRecord as exc:  # unusable: a new picture replaces it
+            self._bad_row(f"pictures robot {robot_sysid} victim {victim_id}", exc)
+            return None
 
     def picture_versions(self) -> dict[tuple[int, int], tuple[int, float]]:
         """(picture_id, received time) of every stored picture by (robot, victim)."""
-        rows = self._db.execute(
-            "SELECT robot_sysid, victim_id, picture_id, received_unix_s FROM pictures"
-        ).fetchall()
-        return {(int(r), int(v)): (int(p), float(t)) for r, v, p, t in rows}
+        return registry_rows.picture_versions(self._db, self._bad_row)
 
     def picture(self, robot_sysid: int, victim_id: int) -> bytes | None:
         """The stored JPEG, None without one or when the row is unusable (said once)."""
@@ -356,11 +361,7 @@ class Registry:
 
     def first_received_unix_s(self) -> dict[tuple[int, int], float]:
         """When the first report of each (robot sysid, robot's victim id) arrived."""
-        rows = self._db.execute(
-            "SELECT robot_sysid, victim_id, MIN(received_unix_s) FROM reports"
-            " GROUP BY robot_sysid, victim_id"
-        ).fetchall()
-        return {(int(r), int(v)): float(t) for r, v, t in rows}
+        return registry_rows.first_received_unix_s(self._db, self._bad_row)
 
     def report_count(self) -> int:
         return int(self._db.execute("SELECT COUNT(*) FROM reports").fetchone()[0])

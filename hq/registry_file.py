@@ -139,22 +139,22 @@ def _setup(db: sqlite3.Connection, path: Path) -> int:
         for statement in _SCHEMA.split(";"):
             if statement.strip():
                 db.execute(statement)
-        version = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        row = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        version = None if row is None else _meta_int(row[0], "schema_version", path)
         if version is None:
             db.execute("INSERT INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
             _start_epoch(db, path, epoch.last_epoch(path) + 1)
-        elif int(version[0]) in _MIGRATIONS:
-            for old in range(int(version[0]), SCHEMA_VERSION):
+        elif version in _MIGRATIONS:
+            for old in range(version, SCHEMA_VERSION):
                 for statement in _MIGRATIONS[old]:
                     db.execute(statement)
             db.execute("UPDATE meta SET value=? WHERE key='schema_version'", (str(SCHEMA_VERSION),))
-        elif int(version[0]) != SCHEMA_VERSION:
+        elif version != SCHEMA_VERSION:
             raise RegistryError(
-                f"database {path}: schema version {version[0]}, "
-                f"this rescue-hq knows {SCHEMA_VERSION}"
+                f"database {path}: schema version {version}, this rescue-hq knows {SCHEMA_VERSION}"
             )
         row = db.execute("SELECT value FROM meta WHERE key='epoch'").fetchone()
-        number = 1 if row is None else int(row[0])  # no epoch yet: an older registry
+        number = 1 if row is None else _meta_int(row[0], "epoch", path)  # none: older registry
         epoch.record(path, epoch=number)  # a lost epoch file is written again
         db.execute("COMMIT")
     except epoch.EpochError as exc:
@@ -164,6 +164,16 @@ def _setup(db: sqlite3.Connection, path: Path) -> int:
         _rollback(db, path)
         raise
     return number
+
+
+def _meta_int(value: object, key: str, path: Path) -> int:
+    """A whole number the registry keeps in its meta table (as text)."""
+    try:
+        return int(str(value))
+    except ValueError:
+        raise RegistryError(
+            f"database {path}: meta {key} = {str(value)[:40]!r} is not a whole number"
+        ) from None
 
 
 def _start_epoch(db: sqlite3.Connection, path: Path, number: int) -> None:

@@ -8,6 +8,7 @@ and says it once.
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
 from collections.abc import Callable
 
@@ -25,6 +26,27 @@ from hq.records import (
 )
 
 BadRow = Callable[[str, Exception], None]  # (which row, what is wrong with it)
+
+
+def cell_int(value: object) -> int:
+    """A cell the registry wrote as an INTEGER; BadRecord for text, bytes, NaN, a
+    fraction or an infinity (a file damaged or edited by hand)."""
+    if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+        return int(value)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise BadRecord(f"{value!r} is not a whole number")
+    return value
+
+
+def cell_float(value: object) -> float:
+    """A cell the registry wrote as a REAL; BadRecord unless a finite number."""
+    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+        raise BadRecord(f"{value!r} is not a finite number")
+    return float(value)
+
+
+def cell_optional_float(value: object) -> float | None:
+    return None if value is None else cell_float(value)
 
 
 def picture(
@@ -53,7 +75,10 @@ def sources(db: sqlite3.Connection, bad_row: BadRow) -> list[Source]:
     out = []
     for robot, victim, h, p, s, m, u in rows:
         try:
-            out.append(Source(int(h), report_from_payload(p), int(s), int(m), float(u)))
+            source = Source(
+                cell_int(h), report_from_payload(p), cell_int(s), cell_int(m), cell_float(u)
+            )
+            out.append(source)
         except (BadRecord, TypeError, ValueError) as exc:
             bad_row(f"sources robot {robot} victim {victim}", exc)
     return out
@@ -71,17 +96,16 @@ def actions(db: sqlite3.Connection, bad_row: BadRow, *, pending_only: bool) -> l
     out = []
     for a, r, v, k, c, n, ack, result in rows:
         try:
-            acked = None if ack is None else float(ack)
-            answer = None if result is None else int(result)
+            answer = None if result is None else cell_int(result)
             out.append(
                 Action(
-                    int(a),
-                    int(r),
-                    int(v),
-                    OperatorAction(int(k)),
-                    float(c),
-                    int(n),
-                    acked,
+                    cell_int(a),
+                    cell_int(r),
+                    cell_int(v),
+                    OperatorAction(cell_int(k)),
+                    cell_float(c),
+                    cell_int(n),
+                    cell_optional_float(ack),
                     answer,
                 )
             )
@@ -101,7 +125,9 @@ def robots(db: sqlite3.Connection, bad_row: BadRow) -> list[Robot]:
         origin = parsed = None
         try:
             if lat is not None:
-                origin = check_origin(GlobalOrigin(float(lat), float(lon), float(alt)))
+                origin = check_origin(
+                    GlobalOrigin(cell_float(lat), cell_float(lon), cell_float(alt))
+                )
         except (TypeError, ValueError) as exc:
             bad_row(f"origin of robot {sysid}", exc)
         try:
@@ -111,12 +137,12 @@ def robots(db: sqlite3.Connection, bad_row: BadRow) -> list[Robot]:
         try:
             out.append(
                 Robot(
-                    int(sysid),
-                    int(compid),
-                    float(first),
-                    float(last),
+                    cell_int(sysid),
+                    cell_int(compid),
+                    cell_float(first),
+                    cell_float(last),
                     parsed,
-                    None if status_t is None else float(status_t),
+                    cell_optional_float(status_t),
                     origin,
                 )
             )
@@ -135,3 +161,34 @@ def default_origin(db: sqlite3.Connection, bad_row: BadRow) -> GlobalOrigin | No
     except (TypeError, ValueError) as exc:
         bad_row("the default origin", exc)
         return None
+
+
+def picture_versions(
+    db: sqlite3.Connection, bad_row: BadRow
+) -> dict[tuple[int, int], tuple[int, float]]:
+    """(picture_id, received time) of every usable stored picture by (robot, victim)."""
+    rows = db.execute(
+        "SELECT robot_sysid, victim_id, picture_id, received_unix_s FROM pictures"
+    ).fetchall()
+    out = {}
+    for r, v, p, t in rows:
+        try:
+            out[(cell_int(r), cell_int(v))] = (cell_int(p), cell_float(t))
+        except BadRecord as exc:
+            bad_row(f"pictures robot {r} victim {v}", exc)
+    return out
+
+
+def first_received_unix_s(db: sqlite3.Connection, bad_row: BadRow) -> dict[tuple[int, int], float]:
+    """When the first report of each (robot sysid, robot's victim id) arrived."""
+    rows = db.execute(
+        "SELECT robot_sysid, victim_id, MIN(received_unix_s) FROM reports"
+        " GROUP BY robot_sysid, victim_id"
+    ).fetchall()
+    out = {}
+    for r, v, t in rows:
+        try:
+            out[(cell_int(r), cell_int(v))] = cell_float(t)
+        except BadRecord as exc:
+            bad_row(f"reports robot {r} victim {v}", exc)
+    return out

@@ -1,0 +1,139 @@
+"""Fuzz the HQ registry's rows, its state on disk: any value of any SQLite type in any
+cell of a registry that rescue-hq wrote (a file damaged or edited by hand) leaves
+every read the HQ, its console and its exports make working: the row is skipped
+and named, never an exception. A damaged schema version or epoch is a RegistryError
+naming the file (rescue-hq then moves the file aside or refuses it: test_hq_recovery)."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import shutil
+import sqlite3
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fusion.types import GlobalOrigin
+from hq.export import export_all
+from hq.records import OperatorAction, RobotStatus
+from hq.registry import Registry
+from hq.registry_file import RegistryError
+from hq.view import hq_victims
+from hq.web.feed import picture_versions
+from tests.test_hq_units import ORIGIN, incoming, report
+
+
+def _template() -> Path:
+    """A registry as a mission leaves it: reports of two robots, a status, origins, an
+    action sent and acknowledged, a picture."""
+    path = Path(tempfile.mkdtemp(prefix="hq-fuzz-")) / "template.sqlite"
+    ok, jpeg = cv2.imencode(".jpg", np.full((32, 48, 3), 120, np.uint8))
+    assert ok
+    with Registry(path) as reg:
+        reg.store_reports(
+            [
+                incoming(report(1, 1, 1.0, 2.0, geo=True), 1),
+                incoming(report(1, 2, 6.0, 2.0), 2),
+                incoming(report(2, 1, 1.2, 2.1), 1),
+            ]
+        )
+        reg.store_status(1, 191, RobotStatus(60.0, 5.0, 0.0, 40.0, 7, 2, 0, 0), 1.7e9)
+        reg.set_robot_origin(1, 191, ORIGIN)
+        reg.set_default_origin(GlobalOrigin(47.0, 8.0, 400.0))
+        seq = reg.add_action(1, 1, OperatorAction.RESCUED)
+        reg.note_action_sent(seq, 1.7e9)
+        reg.ack_action(seq, 1.7e9 + 1, 0)
+        reg.store_picture(1, 1, 3, jpeg.tobytes(), 1.7e9)
+    return path
+
+
+TEMPLATE = _template()
+
+
+def _cells() -> list[tuple[str, str, int]]:
+    db = sqlite3.connect(TEMPLATE)
+    out = []
+    for (table,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'"):
+        if table.startswith("sqlite_"):
+            continue
+        columns = [row[1] for row in db.execute(f"PRAGMA table_info({table})")]
+        for (rowid,) in db.execute(f"SELECT rowid FROM {table}"):
+            out += [(table, c, rowid) for c in columns]
+    db.close()
+    return out
+
+
+CELLS = _cells()
+VALUES = st.one_of(
+    st.integers(-(2**63), 2**63 - 1),
+    st.floats(),
+    st.sampled_from([0, -1, 2**62, math.nan, math.inf, -math.inf, 1e308, "", "x", b"\xff"]),
+    st.text(max_size=12),
+    st.binary(max_size=12),
+    st.sampled_from(['{"victim_id": 1}', "{}", "[]", "null", '{"lat_deg": 91}', "NaN"]),
+)
+
+
+@settings(
+    max_examples=int(os.environ.get("FUZZ_N", "150")),
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+)
+@given(edits=st.lists(st.tuples(st.sampled_from(CELLS), VALUES), min_size=1, max_size=3))
+def test_any_value_in_any_cell_is_skipped_and_named(
+    edits: list[tuple[tuple[str, str, int], Any]],
+) -> None:
+    work = Path(tempfile.mkdtemp(prefix="hq-fuzz-"))
+    try:
+        path = work / "hq.sqlite"
+        shutil.copy(TEMPLATE, path)
+        db = sqlite3.connect(path, isolation_level=None)
+        for (table, column, rowid), value in edits:
+            # A constraint the file keeps (NOT NULL, UNIQUE) refuses some: no file holds them.
+            with contextlib.suppress(sqlite3.IntegrityError):
+                db.execute(f"UPDATE {table} SET {column}=? WHERE rowid=?", (value, rowid))
+        db.close()
+        try:
+            reg = Registry(path)
+        except RegistryError as exc:  # its schema version or epoch: the file as a whole
+            assert str(path) in str(exc) and "\n" not in str(exc), str(exc)
+            return
+        with reg:
+            victims = hq_victims(reg)
+            reg.robots()
+            reg.report_count()
+            reg.first_received_unix_s()
+            picture_versions(reg, victims)
+            for v in victims:
+                for robot, victim in v.sources:
+                    reg.picture(robot, victim)
+                    reg.picture_id(robot, victim)
+            export_all(victims, work / "exports")
+            assert all(where and "\n" not in where for where in reg.bad_rows)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def test_a_picture_row_with_a_damaged_number_is_replaced_by_the_next_picture(
+    tmp_path: Path,
+) -> None:
+    """SQLite orders any text above every number: a damaged picture_id would have kept
+    every later picture of that victim out."""
+    path = tmp_path / "hq.sqlite"
+    shutil.copy(TEMPLATE, path)
+    db = sqlite3.connect(path, isolation_level=None)
+    db.execute("UPDATE pictures SET picture_id='x' WHERE robot_sysid=1 AND victim_id=1")
+    db.close()
+    _, jpeg = cv2.imencode(".jpg", np.full((24, 32, 3), 60, np.uint8))
+    with Registry(path) as reg:
+        assert reg.picture_id(1, 1) is None
+        assert "pictures robot 1 victim 1" in reg.bad_rows
+        assert reg.store_picture(1, 1, 1, jpeg.tobytes(), 1.7e9 + 5)
+        assert reg.picture_id(1, 1) == 1 and reg.picture(1, 1) == jpeg.tobytes()
