@@ -74,6 +74,19 @@ class StoreCorrupt(StoreError):
 
 
 _CORRUPT_CODES = (11, 26)  # SQLITE_CORRUPT, SQLITE_NOTADB
+# What a usable row holds, as this program writes it: MAVLink message IDs and sequence
+# numbers, frames of 1..280 bytes (MAVLink 2, signed); pictures' finite numbers.
+_USABLE_OUTBOX = (
+    "typeof(msgid) = 'integer' AND msgid BETWEEN 0 AND 16777215"
+    " AND typeof(seq) = 'integer' AND seq BETWEEN 0 AND 4294967295"
+    " AND typeof(frame) = 'blob' AND length(frame) BETWEEN 1 AND 280"
+)
+_USABLE_PICTURE = (
+    "typeof(picture_id) = 'integer' AND picture_id >= 0"
+    " AND typeof(score) IN ('integer', 'real') AND abs(score) <= 1e9"
+    " AND typeof(taken_unix_s) IN ('integer', 'real') AND taken_unix_s BETWEEN 0 AND 1e11"
+    " AND typeof(jpeg) = 'blob' AND length(jpeg) > 0 AND delivered IN (0, 1)"
+)
 
 
 def _is_corrupt(exc: sqlite3.Error) -> bool:
@@ -208,8 +221,10 @@ class Store:
             return cur.rowcount > 0
 
     def pending(self) -> list[tuple[int, int, bytes]]:
+        """The frames not yet acknowledged; a row that is not one (a damaged or
+        hand-edited file: a text frame, a fractional number) is skipped and said."""
         with self._lock:
-            rows = self._read("SELECT msgid, seq, frame FROM outbox ORDER BY seq")
+            rows = self._usable("outbox", _USABLE_OUTBOX, "msgid, seq, frame", "seq")
         return [(int(m), int(s), bytes(f)) for m, s, f in rows]
 
     # -- evidence pictures ---------------------------------------------------------------
@@ -232,14 +247,30 @@ class Store:
 
     def pictures(self) -> list[StoredPicture]:
         with self._lock:
-            rows = self._read(
-                "SELECT victim_id, picture_id, score, taken_unix_s, jpeg, delivered FROM pictures"
-                " ORDER BY picture_id"
+            rows = self._usable(
+                "pictures",
+                _USABLE_PICTURE,
+                "victim_id, picture_id, score, taken_unix_s, jpeg, delivered",
+                "picture_id",
             )
         return [
             StoredPicture(int(v), int(p), float(s), float(t), bytes(j), bool(d))
             for v, p, s, t, j, d in rows
         ]
+
+    def _usable(self, table: str, usable: str, columns: str, order: str) -> list[Any]:
+        """The rows of ``table`` whose cells have the types and ranges this program
+        writes (SQLite keeps whatever a cell is given); the others are logged."""
+        rows = self._read(f"SELECT {columns} FROM {table} WHERE {usable} ORDER BY {order}")
+        (total,) = self._read(f"SELECT COUNT(*) FROM {table}")[0]
+        if total > len(rows):
+            log.warning(
+                "%s: %d row(s) of %s unusable (damaged or edited): skipped",
+                self.path,
+                total - len(rows),
+                table,
+            )
+        return rows
 
     def close(self) -> None:
         with self._lock:
