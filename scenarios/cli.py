@@ -48,28 +48,23 @@ def _number(low: float, high: float, low_open: bool = True) -> Callable[[str], f
     return parse
 
 
-def _seed(text: str) -> int:
-    """argparse type: a world seed, a whole number >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return value
+def _whole(low: int, high: int, what: str) -> Callable[[str], int]:
+    """argparse type: a whole number in [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = low - 1
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _port(text: str) -> int:
-    """argparse type: a TCP port, 0 for any free one."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a TCP port 0..65535, got {text!r}")
-    return value
-
-
+_SEED = _whole(0, 2**63 - 1, "a whole number >= 0")
+_PORT = _whole(0, 65535, "a TCP port 0..65535 (0: any free one)")
 _DURATION_S = _number(0.0, 1e6)
 _SPEED_M_S = _number(0.0, 5.0)
 
@@ -77,7 +72,7 @@ _SPEED_M_S = _number(0.0, 5.0)
 def _world_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     g = p.add_mutually_exclusive_group(required=required)
     g.add_argument("--preset", choices=PRESETS, help="one of the seven scenarios")
-    g.add_argument("--seed", type=_seed, help="a generated mixed world")
+    g.add_argument("--seed", type=_SEED, help="a generated mixed world")
     g.add_argument("--world", type=Path, help="a world TOML file")
 
 
@@ -127,7 +122,7 @@ def _parser() -> argparse.ArgumentParser:
     _world_args(v)
     v.add_argument("--link", action="append", required=True, help="udpin:H:P, tcpin:H:P, ..., pty")
     v.add_argument(
-        "--camera-port", type=_port, help="serve camera frames on this TCP port (0: any free one)"
+        "--camera-port", type=_PORT, help="serve camera frames on this TCP port (0: any free one)"
     )
     v.add_argument("--camera-host", default="127.0.0.1")
     v.add_argument("--time-scale", type=_number(0.0, 100.0), default=1.0)

@@ -4,16 +4,16 @@ camera model or one ConfigError line naming the file, never another exception.""
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.calibration import camera_model
 from companion.config import ConfigError, config_from_dict
+from tests.jsonfuzz import fuzz_settings
 
 # The layout of ../shared/data/calibration's Raspberry Pi camera files (ROS camera_info).
 ROS = """image_width: 640
@@ -69,11 +69,7 @@ def damaged(draw: st.DrawFn) -> bytes:
     return data
 
 
-@settings(
-    max_examples=int(os.environ.get("FUZZ_N", "300")),
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
-)
+@fuzz_settings(300)
 @given(data=damaged())
 def test_a_damaged_calibration_file_is_a_camera_or_one_line(tmp_path: Path, data: bytes) -> None:
     path = tmp_path / "cal.yaml"

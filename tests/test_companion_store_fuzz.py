@@ -6,21 +6,20 @@ test_fusion_snapshot_fuzz.py, test_companion_state.py.)"""
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
-import os
 import shutil
-import sqlite3
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.store import Store, StoredPicture
+from tests.jsonfuzz import fuzz_settings
+from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy
 
 FRAMES = [(12920, seq, bytes([0xFD, 9, 0, 0, seq % 256]) + b"payload") for seq in (5, 6, 9)]
 JPEG = b"\xff\xd8\xff\xe0" + bytes(60) + b"\xff\xd9"
@@ -41,48 +40,19 @@ def _template() -> Path:
 TEMPLATE = _template()
 
 
-def _cells() -> list[tuple[str, str, int]]:
-    db = sqlite3.connect(TEMPLATE)
-    out = []
-    for table in ("outbox", "pictures"):
-        columns = [row[1] for row in db.execute(f"PRAGMA table_info({table})")]
-        for (rowid,) in db.execute(f"SELECT rowid FROM {table}"):
-            out += [(table, c, rowid) for c in columns]
-    db.close()
-    return out
+CELLS = cells(TEMPLATE, ("outbox", "pictures"))
+VALUES = cell_values | st.sampled_from([b"", bytes(400)])  # frames too short and too long
 
 
-CELLS = _cells()
-VALUES = st.one_of(
-    st.integers(-(2**63), 2**63 - 1),
-    st.floats(),
-    st.sampled_from([0, -1, 2**40, 3.5, math.inf, 1e308, "", "x", "12", b"", bytes(400)]),
-    st.text(max_size=8),
-    st.binary(max_size=8),
-)
-
-
-@settings(
-    max_examples=int(os.environ.get("FUZZ_N", "150")),
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@fuzz_settings(150)
 @given(edits=st.lists(st.tuples(st.sampled_from(CELLS), VALUES), min_size=1, max_size=3))
 def test_any_value_in_any_cell_is_read_or_skipped(
-    edits: list[tuple[tuple[str, str, int], Any]],
+    edits: list[tuple[Cell, Any]],
 ) -> None:
     work = Path(tempfile.mkdtemp(prefix="store-fuzz-"))
     try:
         path = work / "state.sqlite"
-        shutil.copy(TEMPLATE, path)
-        db = sqlite3.connect(path, isolation_level=None)
-        touched = set()
-        for (table, column, rowid), value in edits:
-            # A constraint the file keeps (NOT NULL, a key's type) refuses some values.
-            with contextlib.suppress(sqlite3.IntegrityError):
-                db.execute(f"UPDATE {table} SET {column}=? WHERE rowid=?", (value, rowid))
-                touched.add((table, rowid))
-        db.close()
+        touched = {(table, rowid) for table, _, rowid in damaged_copy(TEMPLATE, path, edits)}
         store = Store(path)
         try:
             pending = store.pending()
@@ -102,11 +72,11 @@ def test_any_value_in_any_cell_is_read_or_skipped(
 
 def test_a_text_frame_is_skipped_and_said(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = tmp_path / "state.sqlite"
-    shutil.copy(TEMPLATE, path)
-    db = sqlite3.connect(path, isolation_level=None)
-    db.execute("UPDATE outbox SET frame='not a frame' WHERE seq=6")
-    db.execute("UPDATE pictures SET score='x' WHERE victim_id=1")
-    db.close()
+    damaged_copy(
+        TEMPLATE,
+        path,
+        [(("outbox", "frame", 2), "not a frame"), (("pictures", "score", 1), "x")],
+    )
     store = Store(path)
     with caplog.at_level(logging.WARNING):
         assert [seq for _, seq, _ in store.pending()] == [5, 9]

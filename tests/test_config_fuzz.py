@@ -5,17 +5,16 @@ or one ConfigError line, never another exception."""
 from __future__ import annotations
 
 import copy
-import os
 import tomllib
 from pathlib import Path
 from typing import Any
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.calibration import camera_model
 from companion.config import ConfigError, config_from_dict
-from tests.jsonfuzz import json_values
+from tests.jsonfuzz import NewKey, fuzz_settings, json_values
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "systemd" / "config.example.toml"
 BASE = tomllib.loads(EXAMPLE.read_text(encoding="utf-8"))
@@ -51,15 +50,7 @@ toml_values = json_values.filter(lambda v: v is not None) | st.sampled_from(
 )
 
 
-class NewKey(str):
-    """An edit that adds a key of this name beside the chosen one."""
-
-
-@settings(
-    max_examples=int(os.environ.get("FUZZ_N", "400")),  # more by hand: FUZZ_N=8000
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@fuzz_settings(400)
 @given(
     edits=st.lists(
         st.tuples(

@@ -6,18 +6,14 @@ naming the file (rescue-hq then moves the file aside or refuses it: test_hq_reco
 
 from __future__ import annotations
 
-import contextlib
-import math
-import os
 import shutil
-import sqlite3
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from fusion.types import GlobalOrigin
@@ -27,6 +23,8 @@ from hq.registry import Registry
 from hq.registry_file import RegistryError
 from hq.view import hq_victims
 from hq.web.feed import picture_versions
+from tests.jsonfuzz import fuzz_settings
+from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy
 from tests.test_hq_units import ORIGIN, incoming, report
 
 
@@ -57,49 +55,21 @@ def _template() -> Path:
 TEMPLATE = _template()
 
 
-def _cells() -> list[tuple[str, str, int]]:
-    db = sqlite3.connect(TEMPLATE)
-    out = []
-    for (table,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'"):
-        if table.startswith("sqlite_"):
-            continue
-        columns = [row[1] for row in db.execute(f"PRAGMA table_info({table})")]
-        for (rowid,) in db.execute(f"SELECT rowid FROM {table}"):
-            out += [(table, c, rowid) for c in columns]
-    db.close()
-    return out
-
-
-CELLS = _cells()
-VALUES = st.one_of(
-    st.integers(-(2**63), 2**63 - 1),
-    st.floats(),
-    st.sampled_from([0, -1, 2**62, math.nan, math.inf, -math.inf, 1e308, "", "x", b"\xff"]),
-    st.text(max_size=12),
-    st.binary(max_size=12),
-    st.sampled_from(['{"victim_id": 1}', "{}", "[]", "null", '{"lat_deg": 91}', "NaN"]),
+CELLS = cells(TEMPLATE)
+VALUES = cell_values | st.sampled_from(
+    ['{"victim_id": 1}', "{}", "[]", "null", '{"lat_deg": 91}', "NaN"]  # JSON payloads
 )
 
 
-@settings(
-    max_examples=int(os.environ.get("FUZZ_N", "150")),
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@fuzz_settings(150)
 @given(edits=st.lists(st.tuples(st.sampled_from(CELLS), VALUES), min_size=1, max_size=3))
 def test_any_value_in_any_cell_is_skipped_and_named(
-    edits: list[tuple[tuple[str, str, int], Any]],
+    edits: list[tuple[Cell, Any]],
 ) -> None:
     work = Path(tempfile.mkdtemp(prefix="hq-fuzz-"))
     try:
         path = work / "hq.sqlite"
-        shutil.copy(TEMPLATE, path)
-        db = sqlite3.connect(path, isolation_level=None)
-        for (table, column, rowid), value in edits:
-            # A constraint the file keeps (NOT NULL, UNIQUE) refuses some: no file holds them.
-            with contextlib.suppress(sqlite3.IntegrityError):
-                db.execute(f"UPDATE {table} SET {column}=? WHERE rowid=?", (value, rowid))
-        db.close()
+        damaged_copy(TEMPLATE, path, edits)
         try:
             reg = Registry(path)
         except RegistryError as exc:  # its schema version or epoch: the file as a whole
@@ -127,10 +97,8 @@ def test_a_picture_row_with_a_damaged_number_is_replaced_by_the_next_picture(
     """SQLite orders any text above every number: a damaged picture_id would have kept
     every later picture of that victim out."""
     path = tmp_path / "hq.sqlite"
-    shutil.copy(TEMPLATE, path)
-    db = sqlite3.connect(path, isolation_level=None)
-    db.execute("UPDATE pictures SET picture_id='x' WHERE robot_sysid=1 AND victim_id=1")
-    db.close()
+    (rowid,) = [r for t, c, r in CELLS if (t, c) == ("pictures", "picture_id")]
+    damaged_copy(TEMPLATE, path, [(("pictures", "picture_id", rowid), "x")])
     _, jpeg = cv2.imencode(".jpg", np.full((24, 32, 3), 60, np.uint8))
     with Registry(path) as reg:
         assert reg.picture_id(1, 1) is None

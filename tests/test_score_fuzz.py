@@ -7,15 +7,14 @@ from __future__ import annotations
 import copy
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from scenarios.score import ScoreInputError, format_score, report_from_dict, score, truth_from_dict
-from tests.jsonfuzz import json_values
+from tests.jsonfuzz import fuzz_settings, json_values
 
 TRUTH = {
     "victims": [
@@ -82,11 +81,7 @@ def _edits(doc: dict[str, Any]) -> st.SearchStrategy[list[tuple[tuple[int, str],
     return st.lists(st.tuples(st.sampled_from(_keys(doc)), values | st.just(KeyError)), max_size=3)
 
 
-@settings(
-    max_examples=int(os.environ.get("FUZZ_N", "400")),
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@fuzz_settings(400)
 @given(truth_edits=_edits(TRUTH), report_edits=_edits(REPORT), duplicate=st.booleans())
 def test_any_value_in_truth_or_report_is_scored_or_one_line(
     truth_edits: list[Any], report_edits: list[Any], duplicate: bool

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import copy
 import math
-import os
 import tomllib
 from typing import Any
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from fusion.types import PoseSample
@@ -18,7 +17,7 @@ from scenarios.camera import VEHICLE_HEIGHT_M, default_camera
 from scenarios.render import Renderer
 from scenarios.world import WorldError, preset
 from scenarios.worldfile import world_from_dict, world_to_toml
-from tests.jsonfuzz import json_values
+from tests.jsonfuzz import NewKey, fuzz_settings, json_values
 
 BASE = tomllib.loads(world_to_toml(preset("mixed")))
 Place = tuple[str | int, ...]
@@ -42,10 +41,6 @@ PLACES = _places(BASE)
 EDGES: list[Any] = [0, -1, 2**63 - 1, -(2**63), 1e308, -1e308, 1e-308, math.nan, math.inf, ""]
 POINTS: list[Any] = [[1e308, 1e308], [0.0, 0.0], [[0, 0], [0, 0], [0, 0]], [[0, 0], [1e308, 0]]]
 toml_values = json_values.filter(lambda v: v is not None) | st.sampled_from([*EDGES, *POINTS])
-
-
-class NewKey(str):
-    """An edit that adds a key of this name beside the chosen one."""
 
 
 def _edit(data: Any, place: Place, value: Any) -> None:
@@ -73,11 +68,7 @@ def _edit(data: Any, place: Place, value: Any) -> None:
         parent[last] = value
 
 
-@settings(
-    max_examples=int(os.environ.get("FUZZ_N", "300")),  # more by hand: FUZZ_N=5000
-    deadline=None,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+@fuzz_settings(300)
 @given(
     edits=st.lists(
         st.tuples(
