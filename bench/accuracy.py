@@ -347,18 +347,29 @@ def measure(scenarios: Sequence[Scenario]) -> dict[str, Any]:
 
 
 def run() -> dict[str, Any]:
-    """The suite's figures (``python -m bench`` collects them into BENCHMARKS.md)."""
+    """The suite's figures (``python -m bench`` collects them into BENCHMARKS.md): a
+    line per mission, then the suite's totals against issue 15's targets."""
     suite = measure(SUITE)
-    keep = (
-        *("true_victims", "matched", "recall", "recall_in_view", "false_victims", "duplicates"),
-        *("error_median_m", "error_p95_m", "error_max_m", "urgency_accuracy"),
-        "inside_95_ellipse",
-        *("time_to_report_median_s", "time_to_report_max_s"),
-    )
     out: dict[str, Any] = {"settings": _settings_line()}
     for key, fig in suite["scenarios"].items():
-        out[key] = {k: fig[k] for k in keep}
-    out["total"] = suite["total"]
+        out[key] = _mission_line(fig)
+    t = suite["total"]
+    out["total: found (target recall >= 0.95)"] = (
+        f"{t['matched']} of {t['true_victims']} ({t['recall']}); of the victims that came "
+        f"into view {t['recall_in_view']} ({t['never_in_view']} never did)"
+    )
+    out["total: false victims (target 0)"] = t["false_victims"]
+    out["total: duplicate IDs (target 0)"] = t["duplicates"]
+    out["total: urgency right (target >= 0.9)"] = (
+        f"{t['urgency_correct']} of {t['matched']} ({t['urgency_accuracy']})"
+    )
+    out["total: localisation error median, p95, max (target median <= 0.15 m)"] = (
+        f"{t['error_median_m']}, {t['error_p95_m']}, {t['error_max_m']} m"
+    )
+    out["total: errors inside the reported 95 % ellipse"] = t["inside_95_ellipse"]
+    out["total: first report after first in view, median, max"] = (
+        f"{t['time_to_report_median_s']}, {t['time_to_report_max_s']} s"
+    )
     out["suite_runtime_s"] = suite["runtime_s"]
     try:
         base = load_baseline()
@@ -370,6 +381,22 @@ def run() -> dict[str, Any]:
     worse = regressions(suite["scenarios"], base["suite"]["scenarios"])
     out["worse_than_baseline"] = "; ".join(worse) or "nothing"
     return out
+
+
+def _mission_line(fig: dict[str, Any]) -> str:
+    """One mission's figures as a person reads them."""
+    parts = [f"found {fig['matched']} of {fig['true_victims']}"]
+    if fig["recall_in_view"] is not None and fig["recall_in_view"] != fig["recall"]:
+        parts[0] += f" (in view: recall {fig['recall_in_view']})"
+    parts += [f"false {fig['false_victims']}", f"duplicates {fig['duplicates']}"]
+    if fig["matched"]:
+        parts += [
+            f"urgency right {fig['urgency_correct']} of {fig['matched']}",
+            f"error median {fig['error_median_m']} m, max {fig['error_max_m']} m",
+            f"inside 95 % ellipse {fig['inside_95_ellipse']}",
+            f"first report {fig['time_to_report_median_s']} s after first in view",
+        ]
+    return ", ".join(parts)
 
 
 def _settings_line() -> str:

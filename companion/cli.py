@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -92,10 +93,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     rep.add_argument(
         "--out",
-        type=Path,
+        type=_replay_out,
         required=True,
         help="the victims JSON file to write (a map PNG goes beside it), or a folder "
-        "for victims.json and victims.png",
+        "(one that exists, or a name ending in /) for victims.json and victims.png",
     )
     det = sub.add_parser(
         "detect",
@@ -144,6 +145,12 @@ def _parser() -> argparse.ArgumentParser:
         "--dir", type=Path, default=None, help="model folder (default: the one in the venv)"
     )
     return parser
+
+
+def _replay_out(text: str) -> Path:
+    """argparse type: ``--out``; a name ending in / is a folder even before it exists
+    (Path drops the slash: "out/" wrote a file named out)."""
+    return Path(text) / "victims.json" if text.endswith(("/", os.sep)) else Path(text)
 
 
 def _positive_int(text: str) -> int:

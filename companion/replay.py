@@ -27,6 +27,7 @@ from companion.pipeline import Pipeline
 from companion.reporting import ReportPolicy
 from companion.sources import EndOfStream, Frame
 from companion.sources.folder import FramesDirSource
+from companion.sources.size import SizedSource
 from companion.vision import make_detector
 from fusion.pose import PoseHistory
 from fusion.registry import Victim
@@ -169,6 +170,7 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
     without an autopilot."""
     check_tlog(tlog)
     source = FramesDirSource(frames_dir)
+    sized = SizedSource(source, config.camera.width_px, config.camera.height_px)
     poses = PoseHistory(config.vehicle.pose_history_s)
     telemetry = _Telemetry(tlog, poses, source.mono_minus_unix_s)
     tracker = VictimTracker(config.tracker)
@@ -188,7 +190,7 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
     total = len(source)
     while True:
         try:
-            frame: Frame = source.read(timeout_s=0.0)
+            frame: Frame = sized.read(timeout_s=0.0)
         except EndOfStream:
             break
         telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)

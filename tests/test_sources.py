@@ -333,7 +333,13 @@ def test_a_live_camera_that_connects_but_stays_silent_is_reopened() -> None:
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     camera = open_camera(
-        CameraConfig(source=f"sim:127.0.0.1:{port}", stall_timeout_s=0.5, reopen_max_backoff_s=0.2)
+        CameraConfig(
+            source=f"sim:127.0.0.1:{port}",
+            width_px=160,  # the marked frames' size
+            height_px=120,
+            stall_timeout_s=0.5,
+            reopen_max_backoff_s=0.2,
+        )
     )
     try:
         frame = _first_frame(camera, 10.0)  # after "no frame for 0.5 s" and the reopen
@@ -360,6 +366,32 @@ def test_reopening_passes_end_of_stream_through(tmp_path: Path) -> None:
     with pytest.raises(EndOfStream):
         camera.read(1.0)
     camera.close()
+
+
+def test_the_camera_gives_frames_at_its_configured_size(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The camera model describes camera.width_px x height_px; a recording or a camera
+    at another size of that aspect is resized (said once), another aspect is named."""
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"17000000000{i}0000.png"), _marked(i, (1280, 960)))
+    camera = open_camera(CameraConfig(source=f"frames:{tmp_path}"))
+    with caplog.at_level("WARNING"):
+        frames = [camera.read(1.0) for _ in range(3)]
+    camera.close()
+    assert [f.image.shape for f in frames] == [(480, 640, 3)] * 3
+    assert [f.index for f in frames] == [0, 1, 2]
+    said = [r.getMessage() for r in caplog.records if "resized to it" in r.getMessage()]
+    assert len(said) == 1 and "1280x960" in said[0], said
+    wide = tmp_path / "wide"
+    wide.mkdir()
+    cv2.imwrite(str(wide / "1700000000000000.png"), _marked(0, (1280, 720)))
+    with pytest.raises(
+        CameraError, match="frames are 1280x720, the camera is configured for 640x480"
+    ):
+        from companion.sources.size import SizedSource
+
+        SizedSource(open_source(CameraConfig(source=f"frames:{wide}")), 640, 480).read(1.0)
 
 
 # -- source strings and unavailable cameras ---------------------------------------

@@ -15,7 +15,8 @@
 =========================  ==========================================================
 
 ``open_source(config)`` opens one; ``open_camera(config)`` wraps it in a
-ReopeningSource that retries with backoff. ``parse_source`` checks the string only
+ReopeningSource that retries with backoff, its frames at the configured size
+(``size.SizedSource``). ``parse_source`` checks the string only
 (for the config stage). Relative PATH/DIR are taken as given (the config loader
 does not resolve them: they are strings).
 """
@@ -127,8 +128,10 @@ def open_camera(camera: CameraConfig) -> ReopeningSource:
     live one silent for ``stall_timeout_s`` is reopened; a recording never is."""
     spec = parse_source(camera.source)  # a malformed string is a config error, not a retry loop
     live = spec.kind not in ("file", "frames")
+    from companion.sources.size import SizedSource
+
     return ReopeningSource(
-        lambda: open_source(camera),
+        lambda: SizedSource(open_source(camera), camera.width_px, camera.height_px),
         max_backoff_s=camera.reopen_max_backoff_s,
         initial_backoff_s=min(0.2, camera.reopen_max_backoff_s),
         stall_timeout_s=camera.stall_timeout_s if live and camera.stall_timeout_s > 0 else None,
