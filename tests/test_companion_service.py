@@ -316,3 +316,23 @@ def test_survives_camera_loss_and_link_loss_and_says_so(
         assert _stop(proc) == 0, (tmp_path / "companion.log").read_text()[-3000:]
     log = (tmp_path / "companion.log").read_text()
     assert "link lost" in log and "Traceback" not in log
+
+
+def test_a_camera_of_another_aspect_is_named_and_not_used(
+    tmp_path: Path, sim: LiveSim, ground: GroundPeer
+) -> None:
+    """Frames the camera model cannot describe (the simulator's 640x480 against a
+    camera configured for 640x360) are never detected on: the camera is down, the
+    status says so and the log names both sizes; the service goes on."""
+    cfg = _config(tmp_path, sim)
+    cfg.write_text(cfg.read_text().replace("[camera]\n", "[camera]\nheight_px = 360\n"))
+    proc = _start(cfg, tmp_path / "companion.log")
+    try:
+        ground.wait_until(lambda: len(ground.of_type("RESCUE_STATUS", 0.0)) >= 3, 30.0)
+        assert not any(m.flags & 2 for m in ground.of_type("RESCUE_STATUS", 0.0))  # CAMERA
+        assert proc.poll() is None
+    finally:
+        assert _stop(proc) == 0, (tmp_path / "companion.log").read_text()[-3000:]
+    log = (tmp_path / "companion.log").read_text()
+    assert "frames are 640x480, the camera is configured for 640x360" in log
+    assert "Traceback" not in log
