@@ -3,10 +3,12 @@ any SQLite type in chosen cells, as a file damaged or edited by hand holds."""
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import math
 import shutil
 import sqlite3
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +24,13 @@ cell_values: st.SearchStrategy[Any] = st.one_of(
     st.text(max_size=12),
     st.binary(max_size=12),
 )
+
+
+def template_dir(prefix: str) -> Path:
+    """A folder for a module's template file, removed when the test process ends."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return path
 
 
 def cells(path: Path, tables: tuple[str, ...] | None = None) -> list[Cell]:

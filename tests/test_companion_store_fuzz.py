@@ -19,14 +19,14 @@ from hypothesis import strategies as st
 
 from companion.store import Store, StoredPicture
 from tests.jsonfuzz import fuzz_settings
-from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy
+from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy, template_dir
 
 FRAMES = [(12920, seq, bytes([0xFD, 9, 0, 0, seq % 256]) + b"payload") for seq in (5, 6, 9)]
 JPEG = b"\xff\xd8\xff\xe0" + bytes(60) + b"\xff\xd9"
 
 
 def _template() -> Path:
-    path = Path(tempfile.mkdtemp(prefix="store-fuzz-")) / "state.sqlite"
+    path = template_dir("store-fuzz-") / "state.sqlite"
     store = Store(path)
     for msgid, seq, frame in FRAMES:
         store.put(msgid, seq, frame)

@@ -24,14 +24,14 @@ from hq.registry_file import RegistryError
 from hq.view import hq_victims
 from hq.web.feed import picture_versions
 from tests.jsonfuzz import fuzz_settings
-from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy
+from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy, template_dir
 from tests.test_hq_units import ORIGIN, incoming, report
 
 
 def _template() -> Path:
     """A registry as a mission leaves it: reports of two robots, a status, origins, an
     action sent and acknowledged, a picture."""
-    path = Path(tempfile.mkdtemp(prefix="hq-fuzz-")) / "template.sqlite"
+    path = template_dir("hq-fuzz-") / "template.sqlite"
     ok, jpeg = cv2.imencode(".jpg", np.full((32, 48, 3), 120, np.uint8))
     assert ok
     with Registry(path) as reg:
