@@ -11,7 +11,8 @@ so visibility is measured against the body's own extent.
 
 Targets (issue 14): recall on lying people >= 0.95, precision >= 0.95, no false
 detection on the negatives; the whole perception step <= 50 ms median per 640x480
-frame on one core; peak RSS of a process with the models loaded <= 400 MB (the
+frame on one core (the real_falls frames are 640x360; section vision times 640x480
+rover frames); peak RSS of a process with the models loaded <= 400 MB (the
 whole companion stays under that with its other threads: bench/e2e.py). Each photo
 is scored as ``rescue-companion detect`` sees it, alone: every extra detector pass
 runs on it (the two turned frames; without a geometry, a zoomed tile of the
