@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import logging
 import math
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -49,8 +48,8 @@ VALUES = cell_values | st.sampled_from([b"", bytes(400)])  # frames too short an
 def test_any_value_in_any_cell_is_read_or_skipped(
     edits: list[tuple[Cell, Any]],
 ) -> None:
-    work = Path(tempfile.mkdtemp(prefix="store-fuzz-"))
-    try:
+    with tempfile.TemporaryDirectory(prefix="store-fuzz-", ignore_cleanup_errors=True) as tmp:
+        work = Path(tmp)
         path = work / "state.sqlite"
         touched = {(table, rowid) for table, _, rowid in damaged_copy(TEMPLATE, path, edits)}
         store = Store(path)
@@ -66,8 +65,6 @@ def test_any_value_in_any_cell_is_read_or_skipped(
         # Rows no edit reached are all still there.
         assert len(pending) >= sum(1 for r in (1, 2, 3) if ("outbox", r) not in touched)
         assert len(pictures) >= sum(1 for r in (1, 2) if ("pictures", r) not in touched)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 def test_a_text_frame_is_skipped_and_said(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:

@@ -6,7 +6,6 @@ naming the file (rescue-hq then moves the file aside or refuses it: test_hq_reco
 
 from __future__ import annotations
 
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -66,8 +65,8 @@ VALUES = cell_values | st.sampled_from(
 def test_any_value_in_any_cell_is_skipped_and_named(
     edits: list[tuple[Cell, Any]],
 ) -> None:
-    work = Path(tempfile.mkdtemp(prefix="hq-fuzz-"))
-    try:
+    with tempfile.TemporaryDirectory(prefix="hq-fuzz-", ignore_cleanup_errors=True) as tmp:
+        work = Path(tmp)
         path = work / "hq.sqlite"
         damaged_copy(TEMPLATE, path, edits)
         try:
@@ -87,8 +86,6 @@ def test_any_value_in_any_cell_is_skipped_and_named(
                     reg.picture_id(robot, victim)
             export_all(victims, work / "exports")
             assert all(where and "\n" not in where for where in reg.bad_rows)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 def test_a_picture_row_with_a_damaged_number_is_replaced_by_the_next_picture(

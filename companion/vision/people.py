@@ -262,19 +262,16 @@ class PeopleDetector:
         self.params = params or PeopleParams()
         self.enhancer = enhancer
         self.min_score = min_score
-        self._pose = Model(models.model_path("pose_detection.tflite", model_dir), threads)
-        self._landmarks = Model(
-            models.model_path(f"pose_landmark_{self.params.landmarks}.tflite", model_dir),
-            threads,
-        )
-        self._segment = Model(
-            models.model_path("selfie_segmentation_landscape.tflite", model_dir), threads
-        )
-        self._palm = Model(models.model_path("palm_detection_lite.tflite", model_dir), threads)
-        self._face = Model(
-            models.model_path("face_detection_full_range.tflite", model_dir), threads
-        )
-        self._hand = Model(models.model_path("hand_landmark_lite.tflite", model_dir), threads)
+
+        def load(name: str) -> Model:
+            return Model(models.model_path(name, model_dir), threads)
+
+        self._pose = load("pose_detection.tflite")
+        self._landmarks = load(f"pose_landmark_{self.params.landmarks}.tflite")
+        self._segment = load("selfie_segmentation_landscape.tflite")
+        self._palm = load("palm_detection_lite.tflite")
+        self._face = load("face_detection_full_range.tflite")
+        self._hand = load("hand_landmark_lite.tflite")
         self._frame = 0  # extra passes run, for their turns
         self._parts_turn = 0  # frames searched for parts, for the face/palm turns
         self._hand_seen = False  # the last frame had a lone hand: look again, out of turn
