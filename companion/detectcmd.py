@@ -35,7 +35,7 @@ import numpy as np
 
 from companion.config import Config, DetectorConfig
 from companion.errors import CompanionError
-from companion.sources.base import CameraError, EndOfStream, decode_image
+from companion.sources.base import CameraError, EndOfStream, decode_image, truncation
 from companion.sources.opencv import VideoFileSource
 from companion.vision import Detector, FrameGeometry, assess, make_detector
 from fusion.types import Detection, PoseSample, Urgency
@@ -59,10 +59,8 @@ def read_image(path: Path) -> np.ndarray:
         data = path.read_bytes()
     except OSError as exc:
         raise ImageError(f"{path}: cannot read: {exc.strerror}") from None
-    if data[:2] == b"\xff\xd8" and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
-        raise ImageError(f"{path}: truncated JPEG (no end-of-image marker)")
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-16:]:
-        raise ImageError(f"{path}: truncated PNG (no IEND chunk)")
+    if (why := truncation(data)) is not None:
+        raise ImageError(f"{path}: {why}")
     if not data:
         raise ImageError(f"{path}: empty file")
     image = decode_image(data)

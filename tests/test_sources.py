@@ -105,12 +105,20 @@ def test_missing_or_unreadable_file_is_a_camera_error(tmp_path: Path) -> None:
 # -- frames folder ----------------------------------------------------------------
 
 
-def test_frames_folder_sorted_by_time_with_bad_files_skipped(tmp_path: Path) -> None:
+def test_frames_folder_sorted_by_time_with_bad_files_skipped(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     stamps_us = [1_700_000_002_000_000, 1_700_000_000_500_000, 1_700_000_001_250_000]
     for i, t_us in enumerate(stamps_us):
         cv2.imwrite(str(tmp_path / f"{t_us}.png"), _marked(i))
     (tmp_path / "1700000001000000.jpg").write_bytes(b"\xff\xd8 broken jpeg")
     (tmp_path / "1700000001100000.jpg").write_bytes(huge_jpeg())  # OpenCV raises on it
+    # Cut short (OpenCV decodes both, grey below the cut), under each other's suffix:
+    # judged by their bytes, not their names.
+    png = cv2.imencode(".png", _marked(3))[1].tobytes()
+    jpeg = cv2.imencode(".jpg", _marked(4))[1].tobytes()
+    (tmp_path / "1700000001200000.jpg").write_bytes(png[: len(png) // 2])
+    (tmp_path / "1700000001300000.png").write_bytes(jpeg[: len(jpeg) // 2])
     (tmp_path / "notes.txt").write_text("ignored")
     (tmp_path / "frame_12.png").write_bytes(b"ignored: not <unix_us>.png")
 
@@ -123,6 +131,8 @@ def test_frames_folder_sorted_by_time_with_bad_files_skipped(tmp_path: Path) -> 
 
     assert [f.t_unix_s for f in frames] == [t / 1e6 for t in sorted(stamps_us)]
     assert [_mark_of(f.image) for f in frames] == [1, 2, 0]  # time order, not name order
+    assert "1700000001200000.jpg is a truncated PNG" in caplog.text
+    assert "1700000001300000.png is a truncated JPEG" in caplog.text
     for f in frames:
         assert f.t_mono_s - f.t_unix_s == pytest.approx(offset, abs=CLOCK_TOL_S)
     assert frames[1].t_mono_s - frames[0].t_mono_s == pytest.approx(0.75, abs=1e-6)

@@ -44,6 +44,17 @@ def decode_image(data: bytes) -> np.ndarray | None:
     return image if image is not None and image.size else None
 
 
+def truncation(data: bytes) -> str | None:
+    """Why an encoded image is cut short, judged by its content (a JPEG without its
+    end-of-image marker, a PNG without its IEND chunk), or None. OpenCV decodes such
+    a file without complaint, grey or black below the cut."""
+    if data[:2] == b"\xff\xd8" and not data.rstrip(b"\x00\r\n").endswith(b"\xff\xd9"):
+        return "truncated JPEG (no end-of-image marker)"
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-16:]:
+        return "truncated PNG (no IEND chunk)"
+    return None
+
+
 class CameraError(CompanionError):
     """The camera failed; the message says which camera and why."""
 

@@ -26,6 +26,7 @@ from companion.sources.base import (
     Frame,
     decode_image,
     mono_minus_unix_s,
+    truncation,
 )
 
 log = logging.getLogger(__name__)
@@ -39,11 +40,8 @@ def read_frame_file(path: Path) -> tuple[np.ndarray | None, str]:
         data = path.read_bytes()
     except OSError as exc:
         return None, f"cannot be read: {exc.strerror or exc}"
-    if path.suffix.lower() == ".png":
-        if b"IEND" not in data[-12:]:
-            return None, "is truncated (no PNG IEND chunk)"
-    elif data.rstrip(b"\x00\r\n")[-2:] != b"\xff\xd9":
-        return None, "is truncated (no JPEG end marker)"
+    if (why := truncation(data)) is not None:
+        return None, f"is a {why}"
     image = decode_image(data)
     if image is None:
         return None, "is not a readable image"
