@@ -7,6 +7,8 @@ but when several robots send straight to the HQ's port, an acknowledgement for
 robot 1 would go to robot 2. ``UdpHubLink`` remembers every peer heard within
 ``peer_timeout_s`` and addresses replies to the peer a message came from;
 ``broadcast`` (the HQ's HEARTBEAT) goes to every live peer, like mavlink-router.
+The peer table is written by the reader thread (``receive``) and read by the thread
+that sends (``broadcast``), so it is guarded by a lock and read as a copy.
 
 Every other kind of link (serial ground radio, udpout to a router, tcp) is a
 mavlink_io ``ReconnectingLink``: one peer, reopened after a break.
@@ -19,8 +21,9 @@ mavlink_io ``ReconnectingLink``: one peer, reopened after a break.
 from __future__ import annotations
 
 import logging
-import select
+import selectors
 import socket
+import threading
 import time
 from typing import Protocol
 
@@ -65,7 +68,10 @@ class UdpHubLink:
             sock.close()
             raise LinkError(f"udpin:{host}:{port}: cannot bind: {exc.strerror or exc}") from exc
         self._sock: socket.socket | None = sock
+        self._selector = selectors.DefaultSelector()  # epoll: no 1024 limit on the fd
+        self._selector.register(sock, selectors.EVENT_READ)
         self.datagram = True
+        self._peers_lock = threading.Lock()  # the reader writes the table, senders read it
         self._peers: dict[tuple[str, int], float] = {}  # address -> last heard (monotonic)
         self._peer_timeout_s = peer_timeout_s
         self.dropped_peers = 0
@@ -77,14 +83,15 @@ class UdpHubLink:
 
     def live_peers(self) -> list[tuple[str, int]]:
         now = time.monotonic()
-        return [a for a, t in self._peers.items() if now - t <= self._peer_timeout_s]
+        with self._peers_lock:
+            return [a for a, t in self._peers.items() if now - t <= self._peer_timeout_s]
 
     def receive(self, timeout_s: float) -> tuple[bytes, Peer]:
         sock = self._sock
         if sock is None:
             raise LinkError(f"{self.name}: closed")
         try:
-            readable, _, _ = select.select([sock], [], [], max(0.0, timeout_s))
+            readable = self._selector.select(max(0.0, timeout_s))
         except (OSError, ValueError) as exc:
             raise LinkError(f"{self.name}: select failed: {exc}") from exc
         if not readable:
@@ -100,6 +107,13 @@ class UdpHubLink:
         return data, peer
 
     def _remember(self, peer: tuple[str, int]) -> None:
+        with self._peers_lock:
+            new = self._remember_locked(peer)
+        if new:
+            log.info("%s: new peer %s:%d", self.name, *peer)
+
+    def _remember_locked(self, peer: tuple[str, int]) -> bool:
+        """Record ``peer`` as heard now; True when it is new. Holds the peers' lock."""
         now = time.monotonic()
         if peer not in self._peers:  # forget peers silent too long before counting
             for gone in [a for a, t in self._peers.items() if now - t > self._peer_timeout_s]:
@@ -108,9 +122,9 @@ class UdpHubLink:
             oldest = min(self._peers, key=self._peers.__getitem__)
             del self._peers[oldest]
             self.dropped_peers += 1
-        if peer not in self._peers:
-            log.info("%s: new peer %s:%d", self.name, *peer)
+        new = peer not in self._peers
         self._peers[peer] = now
+        return new
 
     def send_to(self, data: bytes, peer: Peer) -> None:
         if peer is None:
@@ -131,6 +145,7 @@ class UdpHubLink:
     def close(self) -> None:
         sock, self._sock = self._sock, None
         if sock is not None:
+            self._selector.close()
             sock.close()
 
 
