@@ -9,6 +9,8 @@ after ``store_reports`` returned, i.e. after the commit reached the disk: nothin
 acknowledged is ever lost. A report is a duplicate when (robot, report_seq,
 victim_id, report time) was stored before. An older report (by report_seq, then
 report time) than the one a source holds is stored but does not change the source.
+When a source leaves an HQ victim (its robot merged it into another victim) and no
+one is left there, the operator's notes on it move with the person.
 
 Errors (hq.registry_file): ``RegistryError`` (cannot open: corrupt, not SQLite,
 locked, foreign schema) names the file; ``RegistryBusy`` (a write could not get the
@@ -166,7 +168,23 @@ class Registry:
                 hq_id,
                 placed(r, self._origins_cache or self.origins()),
             )
+        if held is not None and int(held[2]) != hq_id:
+            self._notes_follow(int(held[2]), hq_id, cache)
         return StoreResult.ACCEPTED
+
+    def _notes_follow(
+        self, left: int, joined: int, cache: dict[tuple[int, int], tuple[int, Placed]]
+    ) -> None:
+        """A source went from HQ victim ``left`` to ``joined`` (its robot merged it into
+        another victim, or it moved): when no one is left in ``left``, which the
+        console then no longer shows, the operator's notes on it go with the person."""
+        if any(hq_id == left for hq_id, _ in cache.values()):
+            return
+        moved = self._db.execute(
+            "UPDATE operator_notes SET hq_id=? WHERE hq_id=?", (joined, left)
+        ).rowcount
+        if moved:
+            log.info("%d note(s) of HQ victim %d moved to HQ victim %d", moved, left, joined)
 
     def _placed_sources(self) -> dict[tuple[int, int], tuple[int, Placed]]:
         """(robot, victim) -> (HQ ID, position) of every unmerged source, kept in memory.

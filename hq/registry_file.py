@@ -8,6 +8,8 @@ Tables:
     robots      every robot heard (sysid), its last status and its EKF origin
     actions     operator actions (rescued, false alarm), their action_seq and ack time
     pictures    the newest evidence picture (JPEG) of each (robot, victim_id)
+    operator_notes  the operator's notes on HQ victims (hq.web.notes); moved with the
+                person when the robot merges that victim into another (hq.registry)
 
 ``open_db`` opens (WAL, synchronous=FULL), checks, creates or migrates the file
 and starts a new registry in a new ID epoch (hq.epoch). ``transaction`` is one
@@ -76,6 +78,11 @@ CREATE TABLE IF NOT EXISTS pictures (
     PRIMARY KEY (robot_sysid, victim_id)
 );
 """
+NOTES_SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS operator_notes ("
+    " note_id INTEGER PRIMARY KEY AUTOINCREMENT, hq_id INTEGER NOT NULL,"
+    " text TEXT NOT NULL, created_unix_s REAL NOT NULL)"
+)
 
 
 class RegistryError(HqError):
@@ -139,6 +146,7 @@ def _setup(db: sqlite3.Connection, path: Path) -> int:
         for statement in _SCHEMA.split(";"):
             if statement.strip():
                 db.execute(statement)
+        db.execute(NOTES_SCHEMA)
         row = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
         version = None if row is None else _meta_int(row[0], "schema_version", path)
         if version is None:

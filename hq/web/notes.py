@@ -3,7 +3,10 @@
 A note is the operator's free text ("two people, voices heard", "team B on it").
 RESCUE_OPERATOR_ACTION has no text field, so notes stay at the HQ: every open
 console shows them, they survive a restart, and they are not sent to the robots.
-One ``Notes`` per thread (sqlite3 connections are not shared).
+A note belongs to the person: when a robot merges its victim into another and the
+HQ victim it was on is left with no one, the registry moves its notes to the HQ
+victim that person is now part of (hq.registry). One ``Notes`` per thread (sqlite3
+connections are not shared).
 """
 
 from __future__ import annotations
@@ -13,14 +16,10 @@ import time
 from pathlib import Path
 
 from hq.errors import HqError
+from hq.registry_file import NOTES_SCHEMA
 from hq.web.state import Note
 
 MAX_NOTE_CHARS = 500
-_SCHEMA = (
-    "CREATE TABLE IF NOT EXISTS operator_notes ("
-    " note_id INTEGER PRIMARY KEY AUTOINCREMENT, hq_id INTEGER NOT NULL,"
-    " text TEXT NOT NULL, created_unix_s REAL NOT NULL)"
-)
 
 
 class BadNote(HqError, ValueError):
@@ -40,7 +39,7 @@ def clean(text: str) -> str:
 class Notes:
     def __init__(self, path: Path, *, busy_timeout_s: float = 1.5) -> None:
         self._db = sqlite3.connect(str(path), isolation_level=None, timeout=busy_timeout_s)
-        self._db.execute(_SCHEMA)
+        self._db.execute(NOTES_SCHEMA)
 
     def close(self) -> None:
         self._db.close()
