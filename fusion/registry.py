@@ -26,7 +26,16 @@ from typing import Any, cast
 
 from fusion.errors import FusionError
 from fusion.geodesy import ned_to_geodetic
-from fusion.types import MAX_LOCAL_M, Cov2, GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import (
+    MAX_LOCAL_M,
+    NO_CUES,
+    Cov2,
+    Cue,
+    GlobalOrigin,
+    TrackState,
+    Urgency,
+    VictimReport,
+)
 
 
 class EventKind(Enum):
@@ -56,6 +65,7 @@ class Victim:
     log_odds: float
     merged_into: int | None
     track_id: int = 0  # internal, unique, never reused; a tentative track's only identity
+    cues: Cue = NO_CUES  # which sensing has seen it (colour body, colour part, warm)
 
     @property
     def sigma_m(self) -> float:
@@ -86,6 +96,7 @@ class Victim:
             lat_deg=lat,
             lon_deg=lon,
             alt_m=alt,
+            cues=self.cues,
         )
 
 
@@ -125,7 +136,8 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "history": [[t_unix_s, visibility_pct, quality], ...],
 #                "urgency" (Urgency name), "visibility_pct", "merged_into": int | null,
 #                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...],
-#                "fixes": [[t_unix_s, north_m, east_m], ...]}]}
+#                "fixes": [[t_unix_s, north_m, east_m], ...],
+#                "warm_hits": int, "cues": int (a fusion.types.Cue bitmask)}]}
 #
 # "seen_with" was added to version 1 on 2026-11-27 (a snapshot written before reads as
 # []), and "body_seen": bool with it, which "body_hits" and "part_hits" (detections as
@@ -135,7 +147,11 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 # without it reads as none, and the track reports its filter's mean until it has
 # new ones. A position ("x", a fix) more than MAX_LOCAL_M from the origin is refused,
 # as on the vehicle link: a stored fix at 1e154 m overflowed the median.
+# "warm_hits" (detections by the thermal camera) and "cues" (which sensing saw the
+# track) were added on 2026-11-29; a snapshot without them reads as 0 warm hits and
+# the colour cues its body and part hits imply.
 
+_ALL_CUES = Cue.COLOUR_BODY | Cue.COLOUR_PART | Cue.WARM
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
 SNAPSHOT_VERSION = 1
 
@@ -164,6 +180,8 @@ class TrackRecord:
     part_hits: int = 0  # detections as a lone hand or face only
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
     fixes: tuple[tuple[float, float, float], ...] = ()  # (t_unix_s, north_m, east_m)
+    warm_hits: int = 0  # detections by the thermal camera
+    cues: Cue = NO_CUES  # which sensing has seen it
 
 
 def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) -> dict[str, Any]:
@@ -192,6 +210,8 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "part_hits": r.part_hits,
                 "seen_with": list(r.seen_with),
                 "fixes": [list(f) for f in r.fixes],
+                "warm_hits": r.warm_hits,
+                "cues": int(r.cues),
             }
             for r in records
         ],
@@ -302,6 +322,16 @@ def _record(obj: Any, where: str) -> TrackRecord:
     )
     for i, (_t, north_m, east_m) in enumerate(fixes):
         _local(north_m, east_m, f"{where}.fixes[{i}]")
+    warm_hits = _int(obj, "warm_hits", where, 0) if "warm_hits" in obj else 0
+    if "cues" in obj:
+        cues_raw = _int(obj, "cues", where, 0)
+        if cues_raw & ~int(_ALL_CUES):
+            raise FusionError(f"snapshot{where}.cues: {cues_raw} has bits no cue uses")
+        cues = Cue(cues_raw)
+    else:  # written before the thermal camera: the colour hits say which
+        cues = (Cue.COLOUR_BODY if body_hits else NO_CUES) | (
+            Cue.COLOUR_PART if part_hits else NO_CUES
+        )
     return TrackRecord(
         track_id=_int(obj, "track_id", where, 1),
         victim_id=victim_id,
@@ -323,6 +353,8 @@ def _record(obj: Any, where: str) -> TrackRecord:
         part_hits=part_hits,
         seen_with=tuple(sorted(set(seen_with))),
         fixes=fixes,
+        warm_hits=warm_hits,
+        cues=cues,
     )
 
 

@@ -24,7 +24,7 @@ from filterpy.kalman import KalmanFilter
 from fusion.camera import FloatArray
 from fusion.median import geometric_median
 from fusion.registry import TrackRecord, Victim
-from fusion.types import Cov2, TrackState, Urgency
+from fusion.types import NO_CUES, Cov2, Cue, TrackState, Urgency
 
 
 @dataclass(eq=False)
@@ -49,6 +49,9 @@ class Track:
     # Detections of it as a body, and as a lone part (a hand, a face) only.
     body_hits: int = field(default=0, repr=False)
     part_hits: int = field(default=0, repr=False)
+    # Detections by the thermal camera (also counted above, as a body or a part).
+    warm_hits: int = field(default=0, repr=False)
+    cues: Cue = field(default=NO_CUES, repr=False)  # which sensing has seen it
     # The fixes the filter took, (t_unix_s, north_m, east_m), newest last and at most
     # TrackerParams.position_fixes of them: the victim's position is their median.
     fixes: deque[tuple[float, float, float]] = field(default_factory=deque, repr=False)
@@ -119,6 +122,7 @@ def victim_of(t: Track) -> Victim:
         log_odds=t.log_odds,
         merged_into=t.merged_into,
         track_id=t.track_id,
+        cues=t.cues,
     )
 
 
@@ -143,6 +147,8 @@ def record_of(t: Track) -> TrackRecord:
         part_hits=t.part_hits,
         seen_with=tuple(sorted(t.seen_with)),
         fixes=tuple(t.fixes),
+        warm_hits=t.warm_hits,
+        cues=t.cues,
     )
 
 
@@ -166,4 +172,6 @@ def track_of(rec: TrackRecord, urgency_window: int, position_fixes: int) -> Trac
         body_hits=rec.body_hits,
         part_hits=rec.part_hits,
         fixes=deque(rec.fixes, maxlen=position_fixes),
+        warm_hits=rec.warm_hits,
+        cues=rec.cues,
     )

@@ -87,7 +87,7 @@ from fusion.kalman import kalman_update
 from fusion.params import TrackerParams
 from fusion.registry import EventKind, TrackEvent, Victim
 from fusion.track import Track, new_filter, record_of, track_of, victim_of
-from fusion.types import Observation, TrackState, Urgency
+from fusion.types import Cue, Observation, Sensor, TrackState, Urgency
 from fusion.urgency import classify, weighted_median
 
 log = logging.getLogger(__name__)
@@ -145,8 +145,10 @@ class VictimTracker:
         observations: Sequence[Observation],
         now_unix_s: float,
         in_view: Callable[[float, float], bool],
+        sensor: Sensor = Sensor.COLOUR,
     ) -> list[TrackEvent]:
-        """Fuse one frame's observations (possibly none) taken at ``now_unix_s``."""
+        """Fuse one frame's observations (possibly none) taken at ``now_unix_s`` by
+        ``sensor``'s camera, whose view ``in_view`` is."""
         if not math.isfinite(now_unix_s):
             raise ValueError(f"now_unix_s must be finite, got {now_unix_s!r}")
         events: list[TrackEvent] = []
@@ -160,7 +162,7 @@ class VictimTracker:
             self._hit(live[i], observations[j], events)
         self._note_seen_together([live[i] for i, _ in pairs])
         self._spawn(live, observations, pairs, d2, now_unix_s)
-        self._negative_evidence(live, in_view)
+        self._negative_evidence(live, in_view, sensor)
         self._life_cycle(live, now_unix_s, events)
         self._merge(events)
         return events
@@ -260,6 +262,9 @@ class VictimTracker:
             t.part_hits += 1
         else:
             t.body_hits += 1
+        if obs.sensor == Sensor.THERMAL:
+            t.warm_hits += 1
+        t.cues |= obs.cue
         if obs.part_only and t.part_hits <= t.body_hits:
             return  # a lone hand says little of how much shows of a body seen as often
         t.history.append((obs.t_unix_s, obs.visibility_pct, obs.quality))
@@ -302,6 +307,8 @@ class VictimTracker:
             matched=True,
             body_hits=0 if obs.part_only else 1,
             part_hits=1 if obs.part_only else 0,
+            warm_hits=1 if obs.sensor == Sensor.THERMAL else 0,
+            cues=obs.cue,
             fixes=deque(
                 [(obs.t_unix_s, obs.north_m, obs.east_m)], maxlen=self._params.position_fixes
             ),
@@ -310,11 +317,17 @@ class VictimTracker:
         self._tracks[t.track_id] = t
 
     def _negative_evidence(
-        self, live: list[Track], in_view: Callable[[float, float], bool]
+        self, live: list[Track], in_view: Callable[[float, float], bool], sensor: Sensor
     ) -> None:
+        """Tentative tracks in this camera's view but not detected lose support. The
+        colour camera's misses do not count against a track only the thermal camera
+        has seen: it cannot see warmth under thin cover or in the dark. The thermal
+        camera's count against every track: a person it has in view is warm."""
         miss = self._params.miss_log_odds
         for t in live:
             if t.state == TrackState.TENTATIVE and not t.matched:
+                if sensor == Sensor.COLOUR and t.cues == Cue.WARM:
+                    continue
                 x = t.x
                 if in_view(float(x[0]), float(x[1])):
                     t.log_odds += miss
@@ -394,6 +407,8 @@ class VictimTracker:
         older.log_odds = max(older.log_odds, younger.log_odds)
         older.body_hits += younger.body_hits
         older.part_hits += younger.part_hits
+        older.warm_hits += younger.warm_hits
+        older.cues |= younger.cues
         older.take_fixes(younger)
         for t in self._tracks.values():  # seen beside the younger ID: beside the victim
             if younger.track_id in t.seen_with:

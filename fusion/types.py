@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import IntEnum, IntFlag, StrEnum
 
 Cov2 = tuple[tuple[float, float], tuple[float, float]]
 """A 2x2 covariance in m^2 as nested tuples (hashable, immutable)."""
@@ -48,6 +48,28 @@ class Urgency(IntEnum):
         if visibility_pct >= 10.0:
             return cls.MEDIUM
         return cls.CRITICAL
+
+
+class Cue(IntFlag):
+    """Which sensing saw a victim, as a bitmask. Values match the dialect's RESCUE_CUE."""
+
+    COLOUR_BODY = 1  # the colour camera's person models saw a body
+    COLOUR_PART = 2  # ...or only an exposed part (a hand, a face)
+    WARM = 4  # the thermal camera saw its warmth
+
+    def names(self) -> list[str]:
+        """The cues set, as lower-case words ("colour_body", "warm")."""
+        return [c.name.lower() for c in Cue if c & self and c.name is not None]
+
+
+NO_CUES = Cue(0)  # nothing has seen it yet (a report from before the cues were kept)
+
+
+class Sensor(StrEnum):
+    """The camera an observation comes from."""
+
+    COLOUR = "colour"
+    THERMAL = "thermal"
 
 
 class TrackState(IntEnum):
@@ -207,6 +229,14 @@ class Observation:
     # Only an exposed part was seen (a lone hand or face, no body): where the part
     # is, and how much of a body it shows, but not where a body seen whole lies.
     part_only: bool = False
+    sensor: Sensor = Sensor.COLOUR
+
+    @property
+    def cue(self) -> Cue:
+        """What this observation says saw the victim."""
+        if self.sensor == Sensor.THERMAL:
+            return Cue.WARM
+        return Cue.COLOUR_PART if self.part_only else Cue.COLOUR_BODY
 
     def __post_init__(self) -> None:
         _check_finite(
@@ -248,6 +278,7 @@ class VictimReport:
     lat_deg: float | None = None
     lon_deg: float | None = None
     alt_m: float | None = None
+    cues: Cue = NO_CUES  # which sensing has seen it
 
     def __post_init__(self) -> None:
         _check_finite(
