@@ -30,8 +30,10 @@ from pathlib import Path
 from typing import Any
 
 from fusion.types import Urgency
+from hq.records import ACK_RESULT_ACCEPTED
 from hq.simrobot import SimRobot
 from mavlink_io import picture
+from mavlink_io.dialect import RESCUE_OPERATOR_ACTION_ID
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = ("chromium", "chromium-browser")
@@ -216,10 +218,19 @@ class Mission:
         if ack.msg.result != picture.RESULT_STORED or not ack.tunnelled:
             raise RuntimeError(f"picture {picture_id} not stored: {ack.msg}")
 
-    def ack(self, sysid: int, action: Any) -> None:
-        """Robot ``sysid`` acknowledges an operator action, as the companion does."""
+    def ack(self, sysid: int, action: Any, *, result: int = ACK_RESULT_ACCEPTED) -> None:
+        """Robot ``sysid`` answers an operator action, as the companion does (ACCEPTED,
+        or REJECTED when it no longer knows the victim)."""
+        robot = self.robots[sysid]
+        msg = robot.m.MAVLink_rescue_ack_message(
+            action.get_srcSystem(),
+            action.get_srcComponent(),
+            RESCUE_OPERATOR_ACTION_ID,
+            action.action_seq,
+            result,
+        )
         with self._lock:
-            self.robots[sysid].ack_action(action)
+            robot.send(msg)
 
     def populate(self, count: int) -> None:
         """``count`` victims spread over the robots' lanes, urgencies in turn."""

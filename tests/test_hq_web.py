@@ -27,7 +27,7 @@ import pytest
 import npmfetch
 from bench.hq_console import HqConsoleProcess, Mission
 from fusion.types import TrackState, Urgency
-from hq.records import Action, OperatorAction, Robot, RobotStatus
+from hq.records import ACK_RESULT_REJECTED, Action, OperatorAction, Robot, RobotStatus
 from hq.view import HqVictim
 from hq.web import assets
 from hq.web.state import LiveRobots, ellipse_95, robots_lost, snapshot
@@ -75,8 +75,11 @@ def test_list_order_open_first_then_urgency_then_waiting_longest() -> None:
     rescued = state["victims"][-1]
     assert rescued["resolved"] is True
     assert rescued["actions"] == [
-        {"seq": 7, "action": "rescued", "robot": 1, "created_unix_s": 60.0, "acked": True}
-    ]
+        {
+            "seq": 7, "action": "rescued", "robot": 1, "created_unix_s": 60.0,
+            "acked": True, "rejected": False, "why": None,
+        }
+    ]  # fmt: skip
     assert rescued["picture"] is None  # no picture: the page shows its placeholder
 
 
@@ -283,6 +286,25 @@ def test_action_from_the_console_reaches_the_robot_and_its_ack_shows(
         hq, lambda s: s["victims"][0]["actions"] and s["victims"][0]["actions"][0]["acked"], "ack"
     )
     assert state["victims"][0]["state"] == "FALSE_ALARM"
+
+
+def test_an_action_the_robot_rejects_shows_as_rejected_with_the_reason(
+    hq_open: tuple[HqConsoleProcess, Mission],
+) -> None:
+    hq, mission = hq_open
+    mission.report(1, 8, 4.0, 2.0, Urgency.CRITICAL)
+    hq_id = _wait_state(hq, lambda s: s["victims"], "victim")["victims"][0]["id"]
+    status, _, _ = _request(hq.url + f"api/victims/{hq_id}/action", data={"action": "rescued"})
+    assert status == 200
+    action = mission.robots[1].wait_for("RESCUE_OPERATOR_ACTION", 5.0, victim_id=8).msg
+    # the robot no longer knows that victim (its state was reset): REJECTED
+    mission.ack(1, action, result=ACK_RESULT_REJECTED)
+    state = _wait_state(hq, lambda s: s["victims"][0]["actions"][0]["rejected"], "the rejection")
+    victim = state["victims"][0]
+    assert victim["state"] == "CONFIRMED" and not victim["resolved"]  # still to be rescued
+    answer = victim["actions"][0]
+    assert answer["acked"] is False  # never "acknowledged ✓"
+    assert "REJECTED" in answer["why"] and "not applied" in answer["why"]
 
 
 def test_bad_actions_and_notes_get_clear_answers(hq_open: tuple[HqConsoleProcess, Mission]) -> None:

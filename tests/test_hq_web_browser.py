@@ -11,6 +11,8 @@ it. The module shares one HQ and one browser to stay within a few seconds.
 
 from __future__ import annotations
 
+import json
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +21,7 @@ import pytest
 
 from bench.hq_console import BrowserUnavailable, HqConsoleProcess, Mission, chromium, wait_js
 from fusion.types import Urgency
+from hq.records import ACK_RESULT_REJECTED
 
 TOKEN = "operator-token-for-tests"
 LINK_TIMEOUT_S = 1.5
@@ -177,6 +180,38 @@ def test_an_action_on_the_page_reaches_the_robot_and_every_page(
     )
     browser.close()
     browser.switch_to.window(first)
+
+
+def test_an_action_the_robot_rejects_says_so_on_its_card(
+    browser: Any, mission_hq: tuple[HqConsoleProcess, Mission]
+) -> None:
+    hq, mission = mission_hq
+    mission.report(1, 7, 12.0, -20.0, Urgency.CRITICAL)
+    with urllib.request.urlopen(hq.url + "api/state", timeout=10) as resp:
+        victims = json.loads(resp.read())["victims"]
+    card = next(v["id"] for v in victims if {"robot": 1, "victim_id": 7} in v["sources"])
+    browser.get(hq.url)
+    wait_js(browser, f"return document.querySelector('#victim-{card}')", 10, "its card")
+    button = f"#victim-{card} .act-rescued"
+    browser.execute_script(f"document.querySelector('{button}').click()")
+    browser.execute_script(f"document.querySelector('{button}').click()")
+    action = mission.robots[1].wait_for("RESCUE_OPERATOR_ACTION", 5.0).msg
+    mission.ack(1, action, result=ACK_RESULT_REJECTED)  # the robot no longer knows it
+    line = wait_js(
+        browser,
+        f"const r = document.querySelector('#victim-{card} .sent .rejected');"
+        "return r && r.innerText",
+        5,
+        "the rejection on the card",
+    )
+    assert "REJECTED" in line and "not applied" in line
+    assert not browser.execute_script(
+        f"return document.querySelector('#victim-{card} .sent .acked')"
+    )
+    assert (
+        browser.execute_script(f"return document.querySelector('#victim-{card}').dataset.state")
+        != "RESCUED"
+    )
 
 
 def test_a_lost_link_shows_its_banner(

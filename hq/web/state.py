@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from fusion.types import TrackState
-from hq.records import Action, Robot
+from hq.records import ACK_RESULT_REJECTED, Action, Robot
 from hq.view import HqVictim
 
 CHI2_2DOF_95 = 5.991  # scipy.stats.chi2.ppf(0.95, df=2): the ellipse's scale
@@ -128,6 +128,33 @@ def _sort_key(v: HqVictim) -> tuple[bool, int, float, int]:
     return (v.state in _RESOLVED, -int(v.urgency), v.first_seen_unix_s, v.hq_id)
 
 
+def _action(a: Action) -> dict[str, Any]:
+    """One operator action as the card shows it: sending, applied by the robot, or
+    refused by it (then the victim's state is what the robots report, and the card
+    says so)."""
+    answered = a.acked_unix_s is not None
+    return {
+        "seq": a.action_seq,
+        "action": _ACTION_NAMES.get(a.action.value, a.action.name.lower()),
+        "robot": a.robot_sysid,
+        "created_unix_s": a.created_unix_s,
+        "acked": answered and not a.rejected,
+        "rejected": answered and a.rejected,
+        "why": _why_refused(a) if answered and a.rejected else None,
+    }
+
+
+def _why_refused(a: Action) -> str:
+    if a.ack_result == ACK_RESULT_REJECTED:
+        answer = "REJECTED"
+    else:
+        answer = f"answered with unknown result {a.ack_result}"
+    return (
+        f"{answer}: the robot does not know that victim or cannot do it; "
+        "not applied, the victim stays as the robots report it"
+    )
+
+
 def _victim(
     v: HqVictim, actions: list[Action], notes: list[Note], picture: str | None
 ) -> dict[str, Any]:
@@ -150,16 +177,7 @@ def _victim(
         "last_seen_unix_s": v.last_seen_unix_s,
         "sightings": v.observations,
         "actions_pending": v.actions_pending,
-        "actions": [
-            {
-                "seq": a.action_seq,
-                "action": _ACTION_NAMES.get(a.action.value, a.action.name.lower()),
-                "robot": a.robot_sysid,
-                "created_unix_s": a.created_unix_s,
-                "acked": a.acked_unix_s is not None,
-            }
-            for a in actions
-        ],
+        "actions": [_action(a) for a in actions],
         "notes": [{"text": n.text, "created_unix_s": n.created_unix_s} for n in notes],
         "picture": f"/victims/{v.hq_id}/picture?v={picture}" if picture else None,
     }

@@ -342,13 +342,22 @@ function fillCard(card, v) {
   const sent = card.querySelector(".sent");
   const latest = new Map();
   for (const a of v.actions) latest.set(a.robot, a);
-  sent.replaceChildren(...[...latest.values()].map((a) =>
-    el("div", { class: a.acked ? "acked" : "pending", dataset: { seq: String(a.seq), acked: String(a.acked) } },
-      a.acked ? `${ACTION_LABEL[a.action] || a.action}: robot ${a.robot} acknowledged ✓`
-        : `${ACTION_LABEL[a.action] || a.action}: sending to robot ${a.robot}…`)));
+  sent.replaceChildren(...[...latest.values()].map(actionLine));
   card.querySelector(".notes").replaceChildren(...v.notes.map((n) =>
     el("li", {}, el("span", { class: "note-time" }, clock(n.created_unix_s)), " ", n.text)));
   tickTimes(card);
+}
+
+// One robot's answer to the newest action sent to it: applied, refused (and why:
+// the victim then stays as the robots report it), or still being sent.
+function actionLine(a) {
+  const what = ACTION_LABEL[a.action] || a.action;
+  const status = a.rejected ? "rejected" : a.acked ? "acked" : "pending";
+  const text = a.rejected ? `${what}: robot ${a.robot} ${a.why}`
+    : a.acked ? `${what}: robot ${a.robot} acknowledged ✓`
+      : `${what}: sending to robot ${a.robot}…`;
+  return el("div", { class: status, dataset: { seq: String(a.seq), acked: String(a.acked), status } },
+    a.rejected ? "✗ " : "", text);
 }
 
 function tickTimes(root) {
