@@ -5,6 +5,11 @@ The link threads only queue what they hear (companion/service.py routes it):
 operator actions from the HQ (RESCUE_OPERATOR_ACTION: applied and committed with
 the reports they cause, then acknowledged; a duplicate is acknowledged again,
 never applied twice; one that cannot be applied is acknowledged REJECTED), and
+a decision about a victim (rescued, false alarm, confirmed) only when it is newer,
+by the HQ's action_seq, than the last one applied to that person (the ledger keeps
+that number with the tracker, across restarts): an older one that arrives late (a
+lost frame resent) is acknowledged REJECTED, not applied, so the HQ, which shows
+the newest action the robot did not refuse, ends where the robot is; and
 PARAM_* and COMMAND_LONG: the parameter protocol of the companion's settings
 (companion/params.py over mavlink_io/params.py) and the camera requests of QGC
 (companion/livevideo.py).
@@ -61,6 +66,11 @@ class Ground:
         self._announcer = announcer
         self._m = m
         self.dedupe = Deduplicator()
+        self._states = {
+            m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
+            m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
+            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
+        }
 
     def handle_actions(self) -> None:
         m = self._m
@@ -70,7 +80,10 @@ class Ground:
             except queue.Empty:
                 return
             result = m.RESCUE_ACK_RESULT_ACCEPTED
-            if self.dedupe.check(msg):
+            older = self._superseded(msg)
+            if older is not None:
+                result = older
+            elif self.dedupe.check(msg):
                 result = m.RESCUE_ACK_RESULT_DUPLICATE
             else:
                 decisions = self._apply_action(msg)
@@ -87,6 +100,30 @@ class Ground:
             )
             self._links.send_dialect(ack)
 
+    def _superseded(self, msg: MavMessage) -> int | None:
+        """The answer to a decision about a victim that is not newer (by the HQ's
+        action_seq) than the one applied last: DUPLICATE for that very action,
+        REJECTED (not applied) for an older one; None for one to apply."""
+        m = self._m
+        if msg.action not in self._states:
+            return None
+        try:
+            victim = self._tracker.resolve(msg.victim_id)
+        except KeyError:
+            return None  # _apply_action says so
+        last = self._ledger.applied_action(victim)
+        if last is None or msg.action_seq > last:
+            return None
+        if msg.action_seq == last:
+            return int(m.RESCUE_ACK_RESULT_DUPLICATE)
+        log.info(
+            "operator action %d on victim %d not applied: action %d, newer, was",
+            msg.action_seq,
+            msg.victim_id,
+            last,
+        )
+        return int(m.RESCUE_ACK_RESULT_REJECTED)
+
     def _apply_action(self, msg: MavMessage) -> list[Decision] | None:
         """The reports an operator action causes; None if it cannot be applied."""
         m = self._m
@@ -94,12 +131,7 @@ class Ground:
         if msg.action == m.RESCUE_OPERATOR_ACTION_RESEND:
             wanted = [v for v in self._tracker.victims() if msg.victim_id in (0, v.victim_id)]
             return self._policy.requested(wanted, now)
-        states = {
-            m.RESCUE_OPERATOR_ACTION_RESCUED: TrackState.RESCUED,
-            m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
-            m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
-        }
-        state = states.get(msg.action)
+        state = self._states.get(msg.action)
         if state is None:
             log.warning("operator action %d: unknown action %d", msg.action_seq, msg.action)
             return None
@@ -108,6 +140,7 @@ class Ground:
         except (KeyError, ValueError) as exc:
             log.warning("operator action %d: %s", msg.action_seq, exc)
             return None
+        self._ledger.action_applied(event.victim.victim_id, msg.action_seq)
         log.info("operator marked victim %d %s", msg.victim_id, state.name)
         return self._policy.decide([event], self._tracker.victims(), now)
 

@@ -6,6 +6,12 @@ transaction; the outbox schedules the reports only after that commit, so the
 reporter never sends what is not on disk, and after a crash nothing
 unacknowledged is lost. Operator actions and a newly known EKF origin commit the
 same way, and the service's stop commits once more (after joining the threads).
+A commit that gives out report sequence numbers or picture IDs, or records an
+applied operator action, is durable (synchronous=FULL): a power cut cannot undo
+what the HQ may have heard. The ledger also keeps the newest operator action
+applied to each victim (by the HQ's action_seq), saved with the tracker, so an
+older action that arrives late is never applied over a newer one
+(companion/ground.py), across restarts too.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from types import ModuleType
+from typing import Any
 
 from companion.announcements import Announcer
 from companion.pictures import Candidate, PictureChooser, PictureSender
@@ -26,6 +33,9 @@ from mavlink_io.reliable import Outbox
 from mavlink_io.vehicle import VehicleLink
 
 log = logging.getLogger(__name__)
+
+APPLIED_ACTIONS_KEY = "applied_actions"  # {victim ID: action_seq of the newest applied}
+_MAX_ACTION_SEQ = 0xFFFFFFFF  # RESCUE_OPERATOR_ACTION.action_seq is a uint32
 
 
 class Ledger:
@@ -68,6 +78,17 @@ class Ledger:
         self._m = m
         self._unsaved: dict[int, Decision] = {}  # by victim: reports not yet on disk
         self._store_failing = False
+        self.applied_actions = _applied_actions(store)
+        self._actions_unsaved = False
+
+    def applied_action(self, victim_id: int) -> int | None:
+        """The action_seq of the newest operator action applied to this victim."""
+        return self.applied_actions.get(victim_id)
+
+    def action_applied(self, victim_id: int, action_seq: int) -> None:
+        """Record an applied operator action; saved (durably) by the next commit."""
+        self.applied_actions[victim_id] = action_seq
+        self._actions_unsaved = True
 
     @property
     def unsaved_victims(self) -> list[int]:
@@ -98,8 +119,11 @@ class Ledger:
             self._announcer.victim(d, d.victim.to_report(sysid, self.floor_down_m, origin))
         seq = self.report_seq
         pictures: list[tuple[Candidate, StoredPicture]] = []
+        # Durable when it gives out sequence numbers (reports, pictures) or records an
+        # operator action: the HQ hears of them, so a power cut must not undo them.
+        durable = bool(self._unsaved or candidates or self._actions_unsaved)
         try:
-            with self._store.transaction():
+            with self._store.transaction(durable=durable):
                 for d in self._unsaved.values():
                     seq += 1
                     report = d.victim.to_report(sysid, self.floor_down_m, origin)
@@ -115,6 +139,10 @@ class Ledger:
                 self._store.set("tracker", self._tracker.snapshot())
                 self._store.set("reported", self._policy.snapshot())
                 self._store.set("report_seq", seq)
+                if self._actions_unsaved:
+                    self._store.set(
+                        APPLIED_ACTIONS_KEY, {str(v): a for v, a in self.applied_actions.items()}
+                    )
         except StoreError as exc:
             self._outbox.discard()
             if not self._store_failing:
@@ -131,6 +159,7 @@ class Ledger:
             self._outbox.discard()
             raise
         self.report_seq = seq
+        self._actions_unsaved = False
         saved = len(self._unsaved)
         self._unsaved.clear()
         self._outbox.publish()  # committed: now the reporter may send them
@@ -149,3 +178,34 @@ class Ledger:
             log.warning("the state database can be written again; %d kept reports saved", saved)
             self._announcer.announce("Rescue companion: state saved again", 5)
         self._wake_reporter.set()
+
+
+def _applied_actions(store: Store) -> dict[int, int]:
+    """The newest operator action applied to each victim, as saved; an unusable value
+    (a damaged or hand-edited file) is said and left out (its victim then takes the
+    next action it is sent, as before this record existed)."""
+    saved: Any = store.get(APPLIED_ACTIONS_KEY)
+    if saved is None:
+        return {}
+    if not isinstance(saved, dict):
+        log.warning("%s: saved %s is not a table: ignored", store.path, APPLIED_ACTIONS_KEY)
+        return {}
+    out: dict[int, int] = {}
+    for key, seq in saved.items():
+        if (
+            isinstance(key, str)
+            and key.isdigit()
+            and isinstance(seq, int)
+            and not isinstance(seq, bool)
+            and 0 <= seq <= _MAX_ACTION_SEQ
+        ):
+            out[int(key)] = seq
+        else:
+            log.warning(
+                "%s: saved %s entry %r: %r unusable: ignored",
+                store.path,
+                APPLIED_ACTIONS_KEY,
+                str(key)[:20],
+                str(seq)[:20],
+            )
+    return out

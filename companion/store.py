@@ -10,8 +10,9 @@ What survives a crash or ``kill -9``:
   HQ has it (companion/pictures.py).
 
 The processing thread writes a frame's consequences in one transaction
-(``with store.transaction(): ...``) *before* anything is sent, so what was sent is
-always on disk. ``put`` is idempotent (INSERT OR IGNORE), so the outbox can store a
+(``with store.transaction(durable=True): ...``) *before* anything is sent, so what
+was sent is always on disk, across a power cut too (WAL runs synchronous=NORMAL,
+and FULL for the commits that give out sequence numbers and IDs). ``put`` is idempotent (INSERT OR IGNORE), so the outbox can store a
 message again when it later sends it. One connection, guarded by a lock: the
 processing thread writes, the reporter thread acknowledges.
 """
@@ -125,8 +126,16 @@ class Store:
     # -- transactions ----------------------------------------------------------------
 
     @contextlib.contextmanager
-    def transaction(self) -> Iterator[None]:
+    def transaction(self, *, durable: bool = False) -> Iterator[None]:
         """Group writes into one commit; nests (the outermost one commits).
+
+        ``durable`` (the outermost one decides): the commit is on the disk before
+        this returns, even across a power cut (synchronous=FULL for this commit).
+        The commits that give out report sequence numbers, victim and picture IDs or
+        record an applied operator action are durable: what the HQ may hear of
+        must never be rolled back. The others (acknowledgements, the periodic save)
+        keep synchronous=NORMAL, which survives a crash of the program but may lose
+        its last commits on a power cut.
 
         A failure (a full disk: SQLite may already have rolled back by itself) rolls
         back whatever is left and raises StoreError naming the file; the connection
@@ -135,7 +144,13 @@ class Store:
         with self._lock:
             db = self._conn()
             if self._depth == 0:
-                self._run(db, "BEGIN IMMEDIATE")
+                if durable:
+                    self._run(db, "PRAGMA synchronous=FULL")
+                try:
+                    self._run(db, "BEGIN IMMEDIATE")
+                except BaseException:
+                    self._relax(db, durable)
+                    raise
             self._depth += 1
             try:
                 yield
@@ -143,6 +158,7 @@ class Store:
                 self._depth -= 1
                 if self._depth == 0:
                     self._rollback(db)
+                    self._relax(db, durable)
                 raise
             self._depth -= 1
             if self._depth == 0:
@@ -151,6 +167,14 @@ class Store:
                 except sqlite3.Error as exc:
                     self._rollback(db)
                     raise StoreError(f"{self.path}: cannot write: {exc}") from None
+                finally:
+                    self._relax(db, durable)
+
+    def _relax(self, db: sqlite3.Connection, durable: bool) -> None:
+        """Back to synchronous=NORMAL after a durable commit (or its failure)."""
+        if durable:
+            with contextlib.suppress(sqlite3.Error):  # the next durable commit sets FULL again
+                db.execute("PRAGMA synchronous=NORMAL")
 
     def _run(self, db: sqlite3.Connection, sql: str) -> None:
         try:
