@@ -1,13 +1,14 @@
 """Settings of the thermal detector (the config file's ``[thermal.detector]``).
 
 Temperatures in degrees Celsius, areas on the floor in square metres. Every value is
-checked here, once, where the config enters.
+checked here, once, where the config enters. The defaults were judged on the real
+radiometric photos (docs/VISION.md, "Thermal"); none was fitted to the simulator.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 
 @dataclass(frozen=True)
@@ -18,27 +19,87 @@ class ThermalDetectorParams:
     min_contrast_k: float = 3.0
     # Nothing a person shows is hotter than this (machinery, hot water, lamps).
     max_skin_c: float = 40.0
-    # Nor colder than this, whatever the ambient (a cold room with a warm draught).
+    # A find's warmest part reaches this, whatever the ambient (a cold room with a
+    # warm draught); the rest of it (clothes, hands in cold water) may be colder.
     min_body_c: float = 22.0
+    # ... and stands this far above the ambient level: exposed skin, not a wall or a
+    # floor a few kelvin warmer than the rest (a façade's windows, floor heating).
+    min_peak_contrast_k: float = 8.0
     # Smallest warm area that can be a person's exposed part (a hand), m² on the floor.
     min_area_m2: float = 0.004
     # Largest warm area one person can cover (a whole body with arms out), m².
     max_area_m2: float = 1.2
+    # A find at most this large is an exposed part alone (a hand, a face, a forearm,
+    # a head and two hands): cue "warm_part".
+    part_max_area_m2: float = 0.08
+    # Warm parts this close on the floor are one person (a head and its hands).
+    merge_gap_m: float = 0.4
+    # Large and flat: at least this large with a temperature spread (standard
+    # deviation) under flat_std_k is a heated surface (floor heating, a radiator
+    # behind a wall), not a person (skin and clothes differ by several kelvin).
+    flat_min_area_m2: float = 0.25
+    flat_std_k: float = 0.6
+    # At least this share of a find's pixels must see the floor (rays below the
+    # horizon, in range): a lying person is on it, a warm pipe on a wall is not.
+    min_floor_share: float = 0.5
+    # Photos (no geometry): a whole lying adult is taken to cover this share of the
+    # frame (a Lepton's 57° at about 3 m), the merge gap is this share of its width,
+    # and a find under part_max_share of the whole body is a part alone.
+    photo_body_share: float = 0.06
+    photo_merge_gap_share: float = 0.06
+    photo_part_max_share: float = 0.1
+    # Warm clusters smaller than this are sensor noise, not evidence.
+    min_blob_px: int = 3
+    # Over frames: a find whose excess over ambient falls at least fade_k_per_s,
+    # measured over at least fade_min_span_s of the last fade_window_s, is a warm
+    # imprint cooling where a person lay, not a person.
+    fade_k_per_s: float = 0.03
+    fade_min_span_s: float = 4.0
+    fade_window_s: float = 20.0
+    # A find is the same warm thing as one remembered within this distance
+    # (floor metres with a geometry, pixels in a photo), forgotten after forget_s.
+    track_radius_m: float = 0.4
+    track_radius_px: float = 8.0
+    track_forget_s: float = 5.0
 
     def __post_init__(self) -> None:
-        for name in ("min_contrast_k", "max_skin_c", "min_body_c", "min_area_m2", "max_area_m2"):
-            value = getattr(self, name)
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{f.name} = {value!r}: must be a number")
             if not math.isfinite(value):
-                raise ValueError(f"{name} = {value}: must be a finite number")
-        if self.min_contrast_k <= 0.0:
-            raise ValueError(f"min_contrast_k = {self.min_contrast_k}: must be > 0")
+                raise ValueError(f"{f.name} = {value}: must be a finite number")
+        positive = [f.name for f in fields(self) if f.name not in ("min_body_c", "max_skin_c")]
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} = {getattr(self, name)}: must be > 0")
         if not -20.0 <= self.min_body_c < self.max_skin_c <= 60.0:
             raise ValueError(
                 f"min_body_c = {self.min_body_c}, max_skin_c = {self.max_skin_c}: "
                 "need -20 <= min_body_c < max_skin_c <= 60"
             )
-        if not 0.0 < self.min_area_m2 < self.max_area_m2:
+        if not self.min_area_m2 < self.part_max_area_m2 < self.max_area_m2:
             raise ValueError(
-                f"min_area_m2 = {self.min_area_m2}, max_area_m2 = {self.max_area_m2}: "
-                "need 0 < min_area_m2 < max_area_m2"
+                f"min_area_m2 = {self.min_area_m2}, part_max_area_m2 = {self.part_max_area_m2}, "
+                f"max_area_m2 = {self.max_area_m2}: need min < part_max < max"
+            )
+        if self.min_contrast_k > self.min_peak_contrast_k:
+            raise ValueError(
+                f"min_contrast_k = {self.min_contrast_k} > min_peak_contrast_k = "
+                f"{self.min_peak_contrast_k}: a find's peak is one of its warm pixels"
+            )
+        for name in (
+            "min_floor_share",
+            "photo_body_share",
+            "photo_merge_gap_share",
+            "photo_part_max_share",
+        ):
+            if getattr(self, name) > 1.0:
+                raise ValueError(f"{name} = {getattr(self, name)}: a share, must be <= 1")
+        if not isinstance(self.min_blob_px, int):
+            raise ValueError(f"min_blob_px = {self.min_blob_px}: must be a whole number")
+        if self.fade_min_span_s > self.fade_window_s:
+            raise ValueError(
+                f"fade_min_span_s = {self.fade_min_span_s} > fade_window_s = "
+                f"{self.fade_window_s}: the span is measured inside the window"
             )

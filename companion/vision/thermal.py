@@ -1,0 +1,270 @@
+"""The thermal detector: people found by their warmth against the scene.
+
+One frame of temperatures (°C) becomes detections, each a person or a person's
+exposed parts:
+
+1. The ambient level is the frame's median temperature (most of a frame is floor,
+   walls, debris or water; a person rarely covers half of it). A pixel is warm when
+   it is ``min_contrast_k`` above it: a man in 7 °C water shows at most 27 °C; in a
+   heat event a 45 °C background is warmer than the animals in it, which then show
+   no warm pixel at all.
+2. Warm pixels form clusters (8-connected, at least ``min_blob_px``). A cluster is
+   the seed of a person when its warmest pixel is skin: at least ``min_body_c``,
+   ``min_peak_contrast_k`` above ambient and not over ``max_skin_c``. Warm clusters
+   within ``merge_gap_m`` of a seed join it (a head and two hands out of water are one
+   person; the hands in cold water read 14-19 °C). A cluster with a pixel hotter than
+   skin is machinery, hot water or a lamp: never a seed, never joined.
+3. Each group's size on the floor (from the geometry: the pixels' metres) tells a
+   hand, a face, a forearm (``part_max_area_m2``: cue ``warm_part``) from a torso or a
+   body; smaller than ``min_area_m2`` or larger than ``max_area_m2`` it is no person.
+   Large and flat (over ``flat_min_area_m2`` with a spread under ``flat_std_k``) is a
+   heated surface. Less than ``min_floor_share`` of it on the floor (rays above the
+   horizon or out of range) is above the floor, where a lying person cannot be.
+4. Over frames (``thermal_track``): a find whose excess over ambient keeps falling is
+   a warm imprint where a person lay, and is dropped.
+
+Without a geometry (a photo) sizes are in pixels: a whole lying adult is taken to
+cover ``photo_body_share`` of the frame (``expected_area_px``), the merge gap is
+``photo_merge_gap_share`` of its width, and a find under ``photo_part_max_share`` of
+a whole body is a part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from companion.vision.base import FrameGeometry, VisionError
+from companion.vision.thermal_params import ThermalDetectorParams
+from companion.vision.thermal_track import ThermalMemory
+from fusion.types import Detection
+
+SOURCE = "thermal"
+
+
+@dataclass(frozen=True)
+class ThermalFind:
+    """One detection with the temperatures behind it."""
+
+    detection: Detection
+    peak_c: float  # the warmest pixel
+    mean_c: float  # over its warm pixels
+    area_m2: float | None  # on the floor; None without a geometry
+
+
+@dataclass(frozen=True)
+class Rejected:
+    """A warm group that is not a person, and why (for benchmarks and --json)."""
+
+    bbox_xywh_px: tuple[int, int, int, int]
+    peak_c: float
+    reason: str
+
+
+@dataclass(frozen=True)
+class ThermalResult:
+    """A frame's ambient level, its finds and the warm groups turned down."""
+
+    ambient_c: float
+    min_c: float
+    max_c: float
+    finds: list[ThermalFind] = field(default_factory=list)
+    rejected: list[Rejected] = field(default_factory=list)
+
+
+def ambient_c(temps_c: np.ndarray) -> float:
+    """The frame's background level: the median (of every second pixel and row)."""
+    sample = temps_c if temps_c.size <= 5_000 else temps_c[::2, ::2]
+    return float(np.median(sample))
+
+
+class ThermalDetector:
+    """Warm regions judged against the scene and the floor; see the module doc."""
+
+    name = SOURCE
+
+    def __init__(self, params: ThermalDetectorParams | None = None, min_score: float = 0.0):
+        self.params = params or ThermalDetectorParams()
+        self.min_score = min_score
+        self.memory = ThermalMemory(self.params)
+
+    def detect(
+        self, temps_c: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
+    ) -> list[Detection]:
+        return [f.detection for f in self.analyse(temps_c, geometry, t_mono_s).finds]
+
+    def analyse(
+        self, temps_c: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
+    ) -> ThermalResult:
+        """The frame's finds with their temperatures, and what was turned down."""
+        t = np.asarray(temps_c)
+        if t.ndim != 2 or t.size == 0 or t.dtype.kind != "f":
+            raise VisionError(f"thermal frame must be a 2-D float array, got {t.dtype} {t.shape}")
+        p = self.params
+        amb = ambient_c(t)
+        result = ThermalResult(amb, float(t.min()), float(t.max()))
+        warm = (t >= amb + p.min_contrast_k).astype(np.uint8)
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(warm, connectivity=8)
+        if n <= 1:
+            self.memory.forget(t_mono_s)
+            return result
+        peaks = _label_max(t, labels, n, -np.inf)
+        big = stats[:, cv2.CC_STAT_AREA] >= p.min_blob_px
+        hot = peaks > p.max_skin_c
+        seeds = big & ~hot & (peaks >= p.min_body_c) & (peaks >= amb + p.min_peak_contrast_k)
+        seeds[0] = False
+        for i in np.flatnonzero(big & hot)[:8]:
+            if i:
+                result.rejected.append(
+                    Rejected(_box(stats[i]), float(peaks[i]), "hotter than skin")
+                )
+        if not seeds.any():
+            self.memory.forget(t_mono_s)
+            return result
+        groups = self._group(labels, seeds, big & ~hot, geometry)
+        for members in groups:
+            self._judge(t, labels, stats, members, amb, geometry, t_mono_s, result)
+        self.memory.forget(t_mono_s)
+        result.finds.sort(key=lambda f: -f.detection.score)
+        return result
+
+    def _gap_px(self, shape: tuple[int, ...], geometry: FrameGeometry | None) -> int:
+        h, w = shape[:2]
+        if geometry is not None:
+            mpp = geometry.metres_per_px(w / 2.0, h * 0.75)
+            if mpp is not None and mpp > 0.0:
+                return max(1, min(round(self.params.merge_gap_m / mpp), w // 4))
+        return max(1, round(self.params.photo_merge_gap_share * w))
+
+    def _group(
+        self,
+        labels: np.ndarray,
+        seeds: np.ndarray,
+        joinable: np.ndarray,
+        geometry: FrameGeometry | None,
+    ) -> list[np.ndarray]:
+        """Cluster indices per person: each seed with the joinable clusters near it."""
+        gap = self._gap_px(labels.shape, geometry)
+        seed_mask = seeds[labels].astype(np.uint8)
+        away = cv2.distanceTransform(1 - seed_mask, cv2.DIST_L2, 3)
+        reach = (away <= gap).astype(np.uint8)
+        _, zones = cv2.connectedComponents(reach, connectivity=8)
+        zone_of = _label_max(zones, labels, len(seeds), 0).astype(np.int64)
+        zone_of[~joinable] = 0
+        zone_of[0] = 0
+        order = np.argsort(zone_of, kind="stable")
+        kept = order[zone_of[order] > 0]
+        return [g for g in np.split(kept, np.flatnonzero(np.diff(zone_of[kept])) + 1) if g.size]
+
+    def _judge(
+        self,
+        t: np.ndarray,
+        labels: np.ndarray,
+        stats: np.ndarray,
+        members: np.ndarray,
+        amb: float,
+        geometry: FrameGeometry | None,
+        t_mono_s: float,
+        result: ThermalResult,
+    ) -> None:
+        p = self.params
+        x0 = int(stats[members, cv2.CC_STAT_LEFT].min())
+        y0 = int(stats[members, cv2.CC_STAT_TOP].min())
+        x1 = int((stats[members, cv2.CC_STAT_LEFT] + stats[members, cv2.CC_STAT_WIDTH]).max())
+        y1 = int((stats[members, cv2.CC_STAT_TOP] + stats[members, cv2.CC_STAT_HEIGHT]).max())
+        box = (x0, y0, x1 - x0, y1 - y0)
+        roi = np.isin(labels[y0:y1, x0:x1], members)
+        vs, us = np.nonzero(roi)
+        vals = t[y0:y1, x0:x1][roi]
+        area_px = float(vals.size)
+        peak, mean, spread = float(vals.max()), float(vals.mean()), float(vals.std())
+        u, v = float(us.mean() + x0), float(vs.mean() + y0)
+
+        def reject(reason: str) -> None:
+            result.rejected.append(Rejected(box, peak, reason))
+
+        area_m2: float | None = None
+        expected: float | None = None
+        if geometry is not None:
+            floor = geometry.floor_ne_m(np.column_stack([us + x0, vs + y0]).astype(np.float64))
+            on_floor = np.isfinite(floor).all(axis=1)
+            if on_floor.mean() < p.min_floor_share or geometry.metres_per_px(u, v) is None:
+                return reject("above the floor or out of range")
+            area_m2 = _area_m2(geometry, us[on_floor] + x0, vs[on_floor] + y0)
+            area_m2 /= max(on_floor.mean(), 1e-9)
+            if area_m2 < p.min_area_m2:
+                return reject(f"{area_m2:.4f} m² is smaller than a hand")
+            if area_m2 > p.max_area_m2:
+                return reject(f"{area_m2:.2f} m² is larger than a person")
+            if area_m2 >= p.flat_min_area_m2 and spread < p.flat_std_k:
+                return reject(f"large and flat ({area_m2:.2f} m², spread {spread:.2f} K)")
+            part = area_m2 <= p.part_max_area_m2
+            key = _floor_key(geometry, u, v)
+            in_metres = key is not None
+        else:
+            expected = p.photo_body_share * t.size
+            if area_px >= p.flat_min_area_m2 * expected and spread < p.flat_std_k:
+                return reject(f"large and flat ({area_px:.0f} px, spread {spread:.2f} K)")
+            part = area_px <= p.photo_part_max_share * expected
+            key, in_metres = None, False
+        if self.memory.observe(key or (u, v), in_metres, peak - amb, t_mono_s):
+            return reject("a warm imprint fading towards ambient")
+        score = _score(peak, amb, p)
+        cues = ("warm", "warm_part") if part else ("warm",)
+        det = Detection(
+            t_mono_s=t_mono_s,
+            u_px=u,
+            v_px=v,
+            bbox_xywh_px=box,
+            visible_area_px=area_px,
+            score=score,
+            source=SOURCE,
+            cues=cues,
+            expected_area_px=expected,
+        )
+        result.finds.append(ThermalFind(det, peak, mean, area_m2))
+
+
+def _box(stat: np.ndarray) -> tuple[int, int, int, int]:
+    return (int(stat[0]), int(stat[1]), int(stat[2]), int(stat[3]))
+
+
+def _area_m2(geometry: FrameGeometry, us: np.ndarray, vs: np.ndarray) -> float:
+    """Floor area of many pixels: each pixel's metres per pixel, squared, summed
+    (FrameGeometry caches per 8x8 cell, so this asks once per cell)."""
+    cells, counts = np.unique((vs // 8) * 100_000 + us // 8, return_counts=True)
+    total = 0.0
+    for cell, count in zip(cells.tolist(), counts.tolist(), strict=True):
+        mpp = geometry.metres_per_px((cell % 100_000) * 8 + 4.0, (cell // 100_000) * 8 + 4.0)
+        if mpp is not None:
+            total += count * mpp * mpp
+    return total
+
+
+def _label_max(values: np.ndarray, labels: np.ndarray, n: int, empty: float) -> np.ndarray:
+    """Per label 1..n-1 the largest value of its pixels (index 0, the background: empty)."""
+    out = np.full(n, empty, dtype=np.float64)
+    idx = np.flatnonzero(labels)
+    if idx.size:
+        lab = labels.ravel()[idx]
+        order = np.argsort(lab, kind="stable")
+        lab = lab[order]
+        vals = values.ravel()[idx][order]
+        starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
+        out[lab[starts]] = np.maximum.reduceat(vals, starts)
+    return out
+
+
+def _floor_key(geometry: FrameGeometry, u: float, v: float) -> tuple[float, float] | None:
+    ne = geometry.floor_ne_m(np.array([[u, v]]))[0]
+    return (float(ne[0]), float(ne[1])) if np.isfinite(ne).all() else None
+
+
+def _score(peak_c: float, amb_c: float, p: ThermalDetectorParams) -> float:
+    """Higher the more the warmest part stands out and the more it reads as skin
+    (28-37 °C when resolved; smaller or farther parts read cooler)."""
+    contrast = min(1.0, (peak_c - amb_c) / (2.0 * p.min_peak_contrast_k))
+    skin = 1.0 if 28.0 <= peak_c <= 37.0 else 0.8
+    return round(max(0.05, min(1.0, 0.5 + 0.5 * contrast) * skin), 3)

@@ -1,0 +1,71 @@
+"""Memory of warm finds over frames: a warm imprint fades, a person does not.
+
+A person who lay on a floor and moved leaves a warm imprint of their shape; it
+cools towards the ambient level frame after frame (minutes), where a person stays
+warm. Each remembered warm thing is keyed by where it is (its floor point in metres
+with a geometry, its pixel in a photo or a fixed camera) and keeps its excess over
+the ambient level for the last ``fade_window_s``. One whose excess falls by at least
+``fade_k_per_s`` (a least-squares slope over at least ``fade_min_span_s``) is fading.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.vision.thermal_params import ThermalDetectorParams
+
+
+@dataclass
+class ThermalTrack:
+    """One warm thing remembered: where it is and its excess over ambient in time."""
+
+    key: tuple[float, float]  # floor (north, east) m, or pixel (u, v)
+    t_last_s: float
+    samples: deque[tuple[float, float]] = field(default_factory=deque)  # (t_s, excess_k)
+
+    def slope_k_per_s(self, min_span_s: float) -> float | None:
+        """The excess's trend over the samples, None while they span less than min_span_s."""
+        if len(self.samples) < 3 or self.samples[-1][0] - self.samples[0][0] < min_span_s:
+            return None
+        t = np.fromiter((s[0] for s in self.samples), float)
+        x = np.fromiter((s[1] for s in self.samples), float)
+        t -= t.mean()
+        return float((t * (x - x.mean())).sum() / (t * t).sum())
+
+
+class ThermalMemory:
+    """Matches each frame's finds to the warm things of earlier frames."""
+
+    def __init__(self, params: ThermalDetectorParams) -> None:
+        self._p = params
+        self.tracks: list[ThermalTrack] = []
+
+    def observe(
+        self, key: tuple[float, float], in_metres: bool, excess_k: float, t_s: float
+    ) -> bool:
+        """Record one find; True when it is a fading imprint (drop it)."""
+        p = self._p
+        radius = p.track_radius_m if in_metres else p.track_radius_px
+        best: ThermalTrack | None = None
+        best_d = radius
+        for tr in self.tracks:
+            d = float(np.hypot(tr.key[0] - key[0], tr.key[1] - key[1]))
+            if d <= best_d and tr.t_last_s < t_s:
+                best, best_d = tr, d
+        if best is None:
+            best = ThermalTrack(key, t_s)
+            self.tracks.append(best)
+        best.key, best.t_last_s = key, t_s
+        best.samples.append((t_s, excess_k))
+        while best.samples and best.samples[0][0] < t_s - p.fade_window_s:
+            best.samples.popleft()
+        slope = best.slope_k_per_s(p.fade_min_span_s)
+        return slope is not None and slope <= -p.fade_k_per_s
+
+    def forget(self, t_s: float) -> None:
+        """Drop what has not been seen for track_forget_s (or time went backwards)."""
+        keep = self._p.track_forget_s
+        self.tracks = [tr for tr in self.tracks if 0.0 <= t_s - tr.t_last_s <= keep]
