@@ -4,6 +4,10 @@ The same ``Pipeline`` runs live (``rescue-companion run``) and offline
 (``rescue-companion replay``): it owns the detector, the tracker and the reporting
 policy, and never touches a link or a file. The caller supplies the frame, the pose
 history, and what to do with the decisions.
+
+With a thermal camera (``ThermalEye``) its frames go through ``process_thermal``: the
+thermal detector, the same geolocation with the thermal camera's model and its own
+pixel noise, and the same tracker, so a person seen by both cameras is one victim.
 """
 
 from __future__ import annotations
@@ -12,23 +16,50 @@ import dataclasses
 import logging
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
 
 from companion.config import Config
 from companion.reporting import Decision, ReportPolicy
 from companion.sources import Frame
+from companion.sources.thermal import ThermalFrame
 from companion.vision import Detector, FrameGeometry, assess
 from fusion.camera import CameraModel
 from fusion.errors import GeolocationRejected, PoseUnavailable
 from fusion.geolocate import geolocate, in_view
+from fusion.params import GeolocationParams
 from fusion.pose import PoseHistory
 from fusion.registry import TrackEvent
 from fusion.tracker import VictimTracker
-from fusion.types import Detection, Observation, PoseSample
+from fusion.types import Detection, Observation, PoseSample, Sensor
 
-PARTS = {"hand", "face"}  # cues of a lone exposed part (people backend)
+# Cues of a lone exposed part: a hand or a face (people backend), a small warm area
+# (thermal detector).
+PARTS = {"hand", "face", "warm_part"}
 
 log = logging.getLogger(__name__)
+
+
+class ThermalDetecting(Protocol):
+    """What the pipeline needs of a thermal detector (companion.vision.thermal)."""
+
+    def detect(
+        self, temps_c: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
+    ) -> list[Detection]: ...
+
+
+@dataclass(frozen=True)
+class ThermalEye:
+    """The thermal camera as the pipeline sees it: its model, its detector, and the
+    1-sigma of a warm blob's centre in its pixels (a Lepton pixel is about 2 cm at 3 m,
+    where a colour pixel is 0.6 cm, so the same pixel noise is a coarser fix)."""
+
+    camera: CameraModel
+    detector: ThermalDetecting
+    pixel_sigma_px: float = 1.5
 
 
 @dataclass
@@ -45,11 +76,13 @@ class FrameOutcome:
     decisions: list[Decision] = field(default_factory=list)
     skipped: str = ""  # why the frame was not used, if it was not
     vision_ms: float = 0.0
+    sensor: Sensor = Sensor.COLOUR
 
 
 @dataclass
 class PipelineCounters:
     frames: int = 0
+    thermal_frames: int = 0
     frames_without_pose: int = 0
     detections: int = 0
     observations: int = 0
@@ -66,8 +99,10 @@ class Pipeline:
         detector: Detector,
         tracker: VictimTracker,
         policy: ReportPolicy,
+        thermal: ThermalEye | None = None,
     ) -> None:
         self.config = config
+        self.thermal = thermal
         self.camera = camera
         self.detector = detector
         self.tracker = tracker
@@ -79,35 +114,92 @@ class Pipeline:
             self._geo,
             max_range_m=min(self._geo.max_range_m, config.tracker.miss_max_range_m),
         )
+        self._thermal_geo = (
+            dataclasses.replace(self._geo, pixel_sigma_px=thermal.pixel_sigma_px)
+            if thermal is not None
+            else self._geo
+        )
+        self._thermal_miss_geo = dataclasses.replace(
+            self._thermal_geo, max_range_m=self._miss_geo.max_range_m
+        )
 
     def process(self, frame: Frame, poses: PoseHistory) -> FrameOutcome:
-        """Run one frame; its pose comes from ``poses`` at the frame's capture time."""
+        """Run one colour frame; its pose comes from ``poses`` at its capture time."""
         self.counters.frames += 1
+        width_px = frame.image.shape[1]
+        return self._run(
+            frame.t_mono_s,
+            frame.t_unix_s,
+            poses,
+            self.camera,
+            self._geo,
+            self._miss_geo,
+            lambda geometry: self.detector.detect(frame.image, geometry, frame.t_mono_s),
+            lambda det: (
+                "person" in det.cues
+                and (det.bbox_xywh_px[0] <= 1 or sum(det.bbox_xywh_px[::2]) >= width_px - 1)
+            ),
+            Sensor.COLOUR,
+        )
+
+    def process_thermal(self, frame: ThermalFrame, poses: PoseHistory) -> FrameOutcome:
+        """Run one thermal frame (``thermal`` must be set) through the same tracker."""
+        if self.thermal is None:
+            raise RuntimeError("process_thermal without a thermal camera")
+        self.counters.thermal_frames += 1
+        detector = self.thermal.detector
+        return self._run(
+            frame.t_mono_s,
+            frame.t_unix_s,
+            poses,
+            self.thermal.camera,
+            self._thermal_geo,
+            self._thermal_miss_geo,
+            lambda geometry: detector.detect(frame.temps_c, geometry, frame.t_mono_s),
+            lambda _det: False,
+            Sensor.THERMAL,
+        )
+
+    def _run(
+        self,
+        t_mono_s: float,
+        t_unix_s: float,
+        poses: PoseHistory,
+        camera: CameraModel,
+        geo: GeolocationParams,
+        miss_geo: GeolocationParams,
+        detect: Callable[[FrameGeometry], list[Detection]],
+        cut_by_frame: Callable[[Detection], bool],
+        sensor: Sensor,
+    ) -> FrameOutcome:
         try:
-            pose = poses.pose_at(frame.t_mono_s, self._geo.max_pose_extrapolation_s)
+            pose = poses.pose_at(t_mono_s, geo.max_pose_extrapolation_s)
         except PoseUnavailable as exc:
             self.counters.frames_without_pose += 1
-            return FrameOutcome(frame.t_unix_s, None, skipped=f"no pose: {exc.reason}")
+            return FrameOutcome(t_unix_s, None, skipped=f"no pose: {exc.reason}", sensor=sensor)
         start = time.perf_counter()
         geometry = FrameGeometry.from_pose(
-            self.camera, pose, self._geo, self.config.detector.body_silhouette_fill
+            camera, pose, geo, self.config.detector.body_silhouette_fill
         )
-        detections = self.detector.detect(frame.image, geometry, frame.t_mono_s)
-        located = [
-            (d, o) for d in detections if (o := self._observe(d, pose, geometry, frame)) is not None
-        ]
+        detections = detect(geometry)
+        located = []
+        for det in detections:
+            obs = self._observe(det, pose, geometry, t_unix_s, camera, geo, cut_by_frame(det))
+            if obs is not None:
+                located.append((det, dataclasses.replace(obs, sensor=sensor)))
         observations = [o for _, o in located]
         vision_ms = (time.perf_counter() - start) * 1000.0
         events = self.tracker.update(
             observations,
-            frame.t_unix_s,
-            lambda n, e: in_view(self.camera, pose, n, e, self._miss_geo),
+            t_unix_s,
+            lambda n, e: in_view(camera, pose, n, e, miss_geo),
+            sensor,
         )
-        decisions = self.policy.decide(events, self.tracker.victims(), frame.t_unix_s)
+        decisions = self.policy.decide(events, self.tracker.victims(), t_unix_s)
         self.counters.detections += len(detections)
         self.counters.observations += len(observations)
         return FrameOutcome(
-            frame.t_unix_s,
+            t_unix_s,
             pose,
             detections,
             observations,
@@ -116,24 +208,30 @@ class Pipeline:
             decisions,
             "",
             vision_ms,
+            sensor,
         )
 
     def _observe(
-        self, det: Detection, pose: PoseSample, geometry: FrameGeometry, frame: Frame
+        self,
+        det: Detection,
+        pose: PoseSample,
+        geometry: FrameGeometry,
+        t_unix_s: float,
+        camera: CameraModel,
+        geo: GeolocationParams,
+        cut: bool,
     ) -> Observation | None:
         assessment = assess(det, geometry)
         if assessment is None:
             self.counters.rejected["off the usable floor"] += 1
             return None
-        x, _y, w, _h = det.bbox_xywh_px
-        cut = "person" in det.cues and (x <= 1 or x + w >= frame.image.shape[1] - 1)
         try:
-            fix = geolocate(self.camera, pose, det.u_px, det.v_px, self._geo, cut)
+            fix = geolocate(camera, pose, det.u_px, det.v_px, geo, cut)
         except GeolocationRejected as exc:
             self.counters.rejected[exc.reason.split(":")[0]] += 1
             return None
         return Observation(
-            t_unix_s=frame.t_unix_s,
+            t_unix_s=t_unix_s,
             north_m=fix.north_m,
             east_m=fix.east_m,
             cov_ne_m2=fix.cov_ne_m2,
