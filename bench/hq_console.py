@@ -17,6 +17,7 @@ bench pins itself; children inherit it).
 from __future__ import annotations
 
 import queue
+import resource
 import shutil
 import statistics
 import subprocess
@@ -51,7 +52,9 @@ class BrowserUnavailable(Exception):
 class HqConsoleProcess:
     """A running `rescue-hq` with its console; stdout lines on a queue."""
 
-    def __init__(self, workdir: Path, *extra: str, console: bool = True) -> None:
+    def __init__(
+        self, workdir: Path, *extra: str, console: bool = True, fd_limit: int | None = None
+    ) -> None:
         self.db = workdir / "hq.sqlite"
         web = ["--web", "127.0.0.1:0"] if console else ["--no-web"]
         cmd = [
@@ -61,8 +64,14 @@ class HqConsoleProcess:
             "--no-table", *web, *extra,
         ]  # fmt: skip
         self.proc = subprocess.Popen(
-            cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            cmd,
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=None if fd_limit is None else lambda: _limit_fds(fd_limit),
         )
+        self.sbs: tuple[str, int] | None = None  # the SBS-1 feed's address, when it has one
         self.lines: queue.Queue[str] = queue.Queue()
         self.stderr: list[str] = []
         self._pumps = [
@@ -85,6 +94,9 @@ class HqConsoleProcess:
     def _pump(self) -> None:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
+            if "SBS-1 feed" in line:
+                host, _, port = line.rsplit(" on ", 1)[1].strip().rpartition(":")
+                self.sbs = (host, int(port))
             self.lines.put(line.rstrip("\n"))
 
     def _pump_err(self) -> None:
@@ -129,6 +141,12 @@ class HqConsoleProcess:
             if pipe is not None:
                 pipe.close()
         return code
+
+
+def _limit_fds(soft: int) -> None:
+    """In the child: at most ``soft`` open files, as on a laptop's default 1024."""
+    _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
 class Mission:

@@ -25,7 +25,7 @@ import re
 import socket
 import sqlite3
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from importlib import resources
@@ -45,6 +45,7 @@ from starlette.responses import (
     StreamingResponse,
 )
 from starlette.routing import Route
+from starlette.types import Receive, Scope, Send
 
 from hq.errors import HqError
 from hq.records import OperatorAction
@@ -54,6 +55,7 @@ from hq.view import HqVictim, hq_victims
 from hq.web import access, assets
 from hq.web.downloads import EXPORTS, export_job
 from hq.web.feed import ConsoleDatabase, Hub, Job, T, picture_job
+from hq.web.limits import ConnectionLimits, capped_protocol
 from hq.web.notes import BadNote, Notes
 from hq.web.state import LiveRobots
 
@@ -61,6 +63,7 @@ log = logging.getLogger(__name__)
 
 _KEEPALIVE_S = 15.0  # an SSE comment line keeps proxies and the browser's timer happy
 _MAX_BODY_BYTES = 4096
+_BACKLOG = 128  # pending connections; also how many one accept round takes
 _PICTURE_VERSION = re.compile(r"\d{1,3}-\d{1,10}-\d{1,10}")  # robot-victim-picture_id
 _ACTIONS = {
     "confirmed": OperatorAction.CONFIRMED,
@@ -80,6 +83,8 @@ class ConsoleOptions:
     token: str | None = None
     link_timeout_s: float = 5.0
     asset_dir: Path | None = None
+    max_connections: int | None = None  # None: hq.web.limits' defaults
+    max_streams: int | None = None
 
 
 def _static(name: str) -> str:
@@ -127,6 +132,7 @@ class Console:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._ready = threading.Event()
         self._db = ConsoleDatabase(db_path, live, options.link_timeout_s, self._publish)
+        self._limits = ConnectionLimits(options.max_connections, options.max_streams)
         self._server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
         self._sock: socket.socket | None = None
@@ -151,7 +157,8 @@ class Console:
             access_log=False,
             log_config=None,
             lifespan="on",
-            http="h11",
+            http=capped_protocol(self._limits),
+            backlog=_BACKLOG,
             ws="none",
             loop="asyncio",
             timeout_graceful_shutdown=2,
@@ -190,6 +197,7 @@ class Console:
         @asynccontextmanager
         async def lifespan(_app: Starlette) -> AsyncIterator[None]:
             self._loop = asyncio.get_running_loop()
+            self._loop.set_exception_handler(self._limits.loop_exception)
             self._hub = Hub()
             self._ready.set()
             yield
@@ -250,6 +258,13 @@ class Console:
     async def _events(self, _request: Request) -> Response:
         hub = self._hub
         assert hub is not None
+        limits = self._limits
+        if not limits.open_stream():
+            return PlainTextResponse(
+                limits.busy_stream_text,
+                status_code=503,
+                headers={"Retry-After": "5", "Connection": "close"},
+            )
 
         async def stream() -> AsyncIterator[str]:
             seen = -1
@@ -264,7 +279,8 @@ class Console:
                 if hub.version == before and not hub.closing:
                     yield ": keepalive\n\n"
 
-        return StreamingResponse(
+        return _CountedStream(
+            limits.close_stream,
             stream(),
             media_type="text/event-stream",
             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
@@ -346,6 +362,20 @@ class Console:
             media_type=EXPORTS[name][0],
             headers={"Content-Disposition": f'attachment; filename="{name}"'},
         )
+
+
+class _CountedStream(StreamingResponse):
+    """An event stream that gives its place back when it ends, however it ends."""
+
+    def __init__(self, closed: Callable[[], None], *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._closed = closed
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self._closed()
 
 
 def _bind(host: str, port: int) -> socket.socket:

@@ -471,6 +471,9 @@ function connect() {
     setConnected(false);
     // A restarted rescue-hq with a (new) token answers 401: back to its sign-in page.
     fetch("/api/state").then((r) => { if (r.status === 401) location.reload(); }, () => {});
+    // Refused (503: the console serves as many pages as it can): the browser gives
+    // up on such a stream, so try again a little later.
+    if (source.readyState === EventSource.CLOSED) setTimeout(connect, 5000);
   });
   source.addEventListener("state", (ev) => {
     if (!connected) setConnected(true);
