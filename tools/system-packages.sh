@@ -3,7 +3,9 @@
 #  - python3-venv: `python3 -m venv` (Debian splits ensurepip out of python3);
 #  - systemd: systemd-analyze, which the tests use to verify the unit file;
 #  - chromium, chromium-driver: the headless browser the rescue-hq console tests
-#    drive (tests/test_hq_web_browser.py); no browser is downloaded from elsewhere.
+#    drive (tests/test_hq_web_browser.py); no browser is downloaded from elsewhere;
+#  - libimage-exiftool-perl: exiftool, which reads FLIR radiometric JPEGs' raw counts
+#    and Planck constants (companion/sources/flir.py, `rescue-companion detect`).
 # Needs root (or sudo) only when something is actually missing.
 set -euo pipefail
 missing=()
@@ -18,6 +20,9 @@ if ! command -v chromium >/dev/null 2>&1; then
 fi
 if ! command -v chromedriver >/dev/null 2>&1; then
     missing+=(chromium-driver)
+fi
+if ! command -v exiftool >/dev/null 2>&1; then
+    missing+=(libimage-exiftool-perl)
 fi
 if [ ${#missing[@]} -eq 0 ]; then
     exit 0
