@@ -1,4 +1,4 @@
-"""Camera calibration files, and the camera model built from the [camera] section.
+"""Camera calibration files, and the camera models built from [camera] and [thermal].
 
 Two layouts are read, both through OpenCV's FileStorage:
 - OpenCV's own (``cv2.FileStorage`` YAML or XML from ``calibrateCamera`` tools):
@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.config import CameraConfig, ConfigError
+from companion.config import CameraConfig, ConfigError, ThermalConfig
 from fusion.camera import CameraModel, Intrinsics, Mount
 
 _MATRIX_KEYS = ("camera_matrix", "K", "cameraMatrix")
@@ -47,13 +47,11 @@ def _read_matrix(node: cv2.FileNode) -> np.ndarray | None:
     return None if mat is None else np.asarray(mat, dtype=float).ravel()
 
 
-def _open(path: Path) -> cv2.FileStorage:
+def _open(path: Path, key: str) -> cv2.FileStorage:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise ConfigError(
-            f"camera.calibration_file {str(path)!r}: cannot read: {exc.strerror}"
-        ) from None
+        raise ConfigError(f"{key} {str(path)!r}: cannot read: {exc.strerror}") from None
     text = raw.decode("utf-8", errors="replace")
     stripped = text.lstrip()
     if path.suffix.lower() in (".yaml", ".yml") and not stripped.startswith("%YAML"):
@@ -65,31 +63,30 @@ def _open(path: Path) -> cv2.FileStorage:
         lines = [ln for ln in str(cause).splitlines() if ln.strip()]
         first = lines[-1].strip() if lines else "parse error"
         raise ConfigError(
-            f"camera.calibration_file {str(path)!r}: not a readable YAML/XML calibration ({first})"
+            f"{key} {str(path)!r}: not a readable YAML/XML calibration ({first})"
         ) from None
     if not fs.isOpened():
-        raise ConfigError(
-            f"camera.calibration_file {str(path)!r}: not a readable YAML/XML calibration"
-        )
+        raise ConfigError(f"{key} {str(path)!r}: not a readable YAML/XML calibration")
     return fs
 
 
-def read_calibration(path: Path) -> Intrinsics:
-    """Intrinsics from an OpenCV or ROS calibration file; ConfigError if unusable."""
-    fs = _open(path)
+def read_calibration(path: Path, key: str = "camera.calibration_file") -> Intrinsics:
+    """Intrinsics from an OpenCV or ROS calibration file; ConfigError (naming ``key``)
+    if unusable."""
+    fs = _open(path, key)
     try:
-        k, d, width, height = _read_nodes(fs, path)
+        k, d, width, height = _read_nodes(fs, path, key)
     except cv2.error as exc:  # a node of the wrong kind (a cut file: "camera_matrix:" alone)
         lines = [ln for ln in str(exc).splitlines() if ln.strip()]
         raise ConfigError(
-            f"camera.calibration_file {str(path)!r}: not a usable calibration "
+            f"{key} {str(path)!r}: not a usable calibration "
             f"({lines[-1].strip() if lines else 'unreadable node'})"
         ) from None
     finally:
         fs.release()
     if d.size not in (4, 5, 8, 12, 14) or (d.size > 5 and np.any(d[5:] != 0)):
         raise ConfigError(
-            f"camera.calibration_file {str(path)!r}: distortion with {d.size} coefficients is not plumb-bob (k1 k2 p1 p2 [k3])"
+            f"{key} {str(path)!r}: distortion with {d.size} coefficients is not plumb-bob (k1 k2 p1 p2 [k3])"
         )
     dist = _dist5(d)
     fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
@@ -99,21 +96,23 @@ def read_calibration(path: Path) -> Intrinsics:
             width, height = round(2 * cx + 1), round(2 * cy + 1)
         return Intrinsics(int(width), int(height), fx, fy, cx, cy, dist)
     except (ValueError, OverflowError) as exc:  # NaN or infinite sizes and centres
-        raise ConfigError(f"camera.calibration_file {str(path)!r}: {exc}") from None
+        raise ConfigError(f"{key} {str(path)!r}: {exc}") from None
 
 
-def _read_nodes(fs: cv2.FileStorage, path: Path) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _read_nodes(
+    fs: cv2.FileStorage, path: Path, key: str
+) -> tuple[np.ndarray, np.ndarray, float, float]:
     """The camera matrix (9 values), distortion, and stated image size (0 if none)."""
     root = fs.root()
     k = next(
-        (m for key in _MATRIX_KEYS if (m := _read_matrix(root.getNode(key))) is not None), None
+        (m for name in _MATRIX_KEYS if (m := _read_matrix(root.getNode(name))) is not None), None
     )
     if k is None or k.size != 9:
         raise ConfigError(
-            f"camera.calibration_file {str(path)!r}: no 3x3 camera_matrix (looked for {', '.join(_MATRIX_KEYS)})"
+            f"{key} {str(path)!r}: no 3x3 camera_matrix (looked for {', '.join(_MATRIX_KEYS)})"
         )
     d = next(
-        (m for key in _DIST_KEYS if (m := _read_matrix(root.getNode(key))) is not None),
+        (m for name in _DIST_KEYS if (m := _read_matrix(root.getNode(name))) is not None),
         np.zeros(5),
     )
     width = root.getNode("image_width").real()
@@ -121,25 +120,25 @@ def _read_nodes(fs: cv2.FileStorage, path: Path) -> tuple[np.ndarray, np.ndarray
     return k, d, width, height
 
 
-def camera_model(cam: CameraConfig) -> CameraModel:
-    """The camera model for the configured frame size and mount."""
+def camera_model(cam: CameraConfig | ThermalConfig) -> CameraModel:
+    """The camera model of [camera] or [thermal] for its frame size and mount (a
+    thermal detection is placed on the floor by the same geometry as a colour one)."""
+    key = f"{'thermal' if isinstance(cam, ThermalConfig) else 'camera'}.calibration_file"
     if cam.calibration_file is not None:
-        intr = read_calibration(cam.calibration_file)
+        intr = read_calibration(cam.calibration_file, key)
         if (intr.width_px, intr.height_px) != (cam.width_px, cam.height_px):
             if not math.isclose(
                 intr.width_px / intr.height_px, cam.width_px / cam.height_px, rel_tol=0.01
             ):
                 raise ConfigError(
-                    f"camera.calibration_file {str(cam.calibration_file)!r} is for "
+                    f"{key} {str(cam.calibration_file)!r} is for "
                     f"{intr.width_px}x{intr.height_px}, whose aspect differs from the configured "
                     f"{cam.width_px}x{cam.height_px}"
                 )
             try:
                 intr = intr.scaled(cam.width_px, cam.height_px)
             except ValueError as exc:  # a focal length near the float limit overflows
-                raise ConfigError(
-                    f"camera.calibration_file {str(cam.calibration_file)!r}: {exc}"
-                ) from None
+                raise ConfigError(f"{key} {str(cam.calibration_file)!r}: {exc}") from None
     elif cam.fx_px > 0:
         cx = cam.cx_px if cam.cx_px > 0 else (cam.width_px - 1) / 2.0
         cy = cam.cy_px if cam.cy_px > 0 else (cam.height_px - 1) / 2.0

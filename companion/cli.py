@@ -92,6 +92,14 @@ def _parser() -> argparse.ArgumentParser:
         help="folder of frames named <unix_time_us>.jpg or .png",
     )
     rep.add_argument(
+        "--thermal-frames",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="folder of thermal frames named <unix_time_us>.png (16-bit, centi-kelvin) on "
+        "the tlog's clock; needs the config's [thermal] section",
+    )
+    rep.add_argument(
         "--out",
         type=_replay_out,
         required=True,
@@ -226,11 +234,36 @@ def _missing_devices(config: Config) -> list[str]:
             f"camera.source = {config.camera.source!r}: "
             f"{what.get(spec.kind, 'no such frames folder')} {path}"
         )
+    problems += _missing_thermal(config)
     for key, url in (("vehicle.url", config.vehicle.url), ("hq.url", config.hq.url)):
         link = parse_link(url) if url else None
         if link is not None and link.kind == "serial" and not Path(link.device).exists():
             problems.append(f"{key} = {url!r}: no such serial port {link.device}")
     return problems
+
+
+def _missing_thermal(config: Config) -> list[str]:
+    """The thermal camera device or frames folder the config names, when it is not
+    here (``lepton`` alone: no PureThermal board found by its V4L2 name)."""
+    from companion.sources import CameraError
+    from companion.sources.thermal import parse_thermal_source
+    from companion.sources.thermal_live import find_purethermal
+
+    if config.thermal is None:
+        return []
+    source = config.thermal.source
+    spec = parse_thermal_source(source)  # checked when the config was loaded
+    if spec.kind == "frames":
+        if not Path(spec.target).is_dir():
+            return [f"thermal.source = {source!r}: no such thermal frames folder {spec.target}"]
+    elif not spec.target:
+        try:
+            find_purethermal()
+        except CameraError as exc:
+            return [f"thermal.source = {source!r}: {exc}"]
+    elif not Path(spec.target).exists():
+        return [f"thermal.source = {source!r}: no such thermal camera device {spec.target}"]
+    return []
 
 
 def _check_config(config: Config, devices: bool = True) -> int:
@@ -243,10 +276,18 @@ def _check_config(config: Config, devices: bool = True) -> int:
         return EXIT_CONFIG
     cam = camera_model(config.camera)
     k = cam.intrinsics
+    if config.thermal is None:
+        thermal = "colour camera only"
+    else:
+        t = camera_model(config.thermal).intrinsics
+        thermal = (
+            f"thermal {config.thermal.source} {t.width_px}x{t.height_px} fx={t.fx_px:.1f}px "
+            f"emissivity {config.thermal.emissivity:g}"
+        )
     print(
         f"config ok: vehicle {config.vehicle.url}, camera {config.camera.source} "
-        f"{k.width_px}x{k.height_px} fx={k.fx_px:.1f}px, detector {config.detector.backend}, "
-        f"state in {config.paths.state_dir}"
+        f"{k.width_px}x{k.height_px} fx={k.fx_px:.1f}px, {thermal}, detector "
+        f"{config.detector.backend}, state in {config.paths.state_dir}"
     )
     return EXIT_OK
 
@@ -281,7 +322,9 @@ def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
         notifier.close()
 
 
-def _replay(config: Config, tlog: Path, frames: Path, out: Path) -> int:
+def _replay(
+    config: Config, tlog: Path, frames: Path, out: Path, thermal_frames: Path | None
+) -> int:
     from companion.replay import prepare_output, replay, write_outputs
     from companion.sources import CameraError
     from companion.vision import VisionError
@@ -293,7 +336,7 @@ def _replay(config: Config, tlog: Path, frames: Path, out: Path) -> int:
         print(f"rescue-companion: replay: cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     try:
-        result = replay(config, tlog, frames)
+        result = replay(config, tlog, frames, thermal_frames)
     except (CameraError, TlogError, VisionError) as exc:
         print(f"rescue-companion: replay: {exc}", file=sys.stderr)
         return EXIT_CONFIG
@@ -303,15 +346,20 @@ def _replay(config: Config, tlog: Path, frames: Path, out: Path) -> int:
         print(f"rescue-companion: replay: cannot write {out}: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     skipped = f", {result.frames_skipped} unreadable skipped" if result.frames_skipped else ""
+    thermal = ""
+    if thermal_frames is not None:
+        thermal = f" and {result.thermal_frames} thermal frames"
+        if result.thermal_frames_skipped:
+            thermal += f" ({result.thermal_frames_skipped} skipped)"
     print(
-        f"replayed {result.frames} frames ({result.frames_without_pose} without a pose"
+        f"replayed {result.frames} frames{thermal} ({result.frames_without_pose} without a pose"
         f"{skipped}), {len(result.victims)} victims -> {out}, map {png}"
     )
     for v in sorted(result.victims, key=lambda v: v.victim_id):
         print(
             f"  #{v.victim_id:<3d} {v.urgency.name:<8s} {v.visibility_pct:5.1f}% "
             f"N{v.north_m:7.2f} E{v.east_m:7.2f} +-{v.sigma_m:.2f} m  {v.state.name.lower()} "
-            f"({v.observations} obs)"
+            f"({v.observations} obs; {', '.join(v.cues.names()) or 'no cue'})"
         )
     return EXIT_OK
 
@@ -337,7 +385,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "run":
         return _run(config, args.debug_processing_delay_s, args.debug_stall_after_s)
     if args.command == "replay":
-        return _replay(config, args.tlog, args.frames, args.out)
+        return _replay(config, args.tlog, args.frames, args.out, args.thermal_frames)
     raise AssertionError(f"unhandled command {args.command}")  # argparse guarantees the set
 
 

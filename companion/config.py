@@ -130,24 +130,27 @@ class CameraConfig:
     stall_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
-        if not self.source.strip():
-            raise ValueError("source: must not be empty")
-        if self.width_px <= 0 or self.height_px <= 0:
-            raise ValueError(
-                f"width_px x height_px = {self.width_px}x{self.height_px}: must be positive"
-            )
-        _positive(self, "fps")
-        if not 1.0 <= self.hfov_deg < 179.0:
-            raise ValueError(f"hfov_deg = {self.hfov_deg}: must be in [1, 179)")
-        if (self.fx_px > 0) != (self.fy_px > 0) or self.fx_px < 0 or self.fy_px < 0:
-            raise ValueError("fx_px, fy_px: give both (> 0) or neither (0)")
-        if len(self.distortion) not in (0, 4, 5):
-            raise ValueError(
-                f"distortion = {list(self.distortion)}: give 4 or 5 coefficients (k1 k2 p1 p2 [k3])"
-            )
-        _positive(self, "reopen_max_backoff_s")
-        if not (math.isfinite(self.stall_timeout_s) and self.stall_timeout_s >= 0.0):
-            raise ValueError(f"stall_timeout_s = {self.stall_timeout_s}: must be >= 0 (0: never)")
+        _check_camera(self)
+
+
+def _check_camera(cam: CameraConfig | ThermalConfig) -> None:
+    """The checks [camera] and [thermal] share: source, size, rate, optics, reopening."""
+    if not cam.source.strip():
+        raise ValueError("source: must not be empty")
+    if cam.width_px <= 0 or cam.height_px <= 0:
+        raise ValueError(f"width_px x height_px = {cam.width_px}x{cam.height_px}: must be positive")
+    _positive(cam, "fps")
+    if not 1.0 <= cam.hfov_deg < 179.0:
+        raise ValueError(f"hfov_deg = {cam.hfov_deg}: must be in [1, 179)")
+    if (cam.fx_px > 0) != (cam.fy_px > 0) or cam.fx_px < 0 or cam.fy_px < 0:
+        raise ValueError("fx_px, fy_px: give both (> 0) or neither (0)")
+    if len(cam.distortion) not in (0, 4, 5):
+        raise ValueError(
+            f"distortion = {list(cam.distortion)}: give 4 or 5 coefficients (k1 k2 p1 p2 [k3])"
+        )
+    _positive(cam, "reopen_max_backoff_s")
+    if not (math.isfinite(cam.stall_timeout_s) and cam.stall_timeout_s >= 0.0):
+        raise ValueError(f"stall_timeout_s = {cam.stall_timeout_s}: must be >= 0 (0: never)")
 
 
 # The BlazePose landmark model the people detector loads (pose_landmark_<name>.tflite).
@@ -197,6 +200,48 @@ class DetectorConfig:
             raise ValueError(
                 f"body_silhouette_fill = {self.body_silhouette_fill}: must be in (0, 1]"
             )
+
+
+# ThermalDetectorParams lives with the thermal detector; companion.vision imports
+# DetectorConfig from this module, so it can only be imported once that is defined.
+from companion.vision.thermal_params import ThermalDetectorParams  # noqa: E402
+
+
+@dataclass(frozen=True)
+class ThermalConfig:
+    """The thermal camera (absent section: none, colour camera only)."""
+
+    source: str = "lepton"  # lepton | lepton:/dev/videoN | infiray:/dev/videoN | frames:DIR
+    width_px: int = 160  # the temperature picture (InfiRay P2 Pro / TC001: 256 x 192)
+    height_px: int = 120
+    fps: float = 8.7
+    hfov_deg: float = (
+        57.0  # FLIR Lepton 3.5; used when neither fx_px nor a calibration file is given
+    )
+    fx_px: float = 0.0  # 0: from hfov_deg
+    fy_px: float = 0.0
+    cx_px: float = 0.0  # 0 with fx_px 0: the image centre
+    cy_px: float = 0.0
+    distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)  # k1 k2 p1 p2 k3
+    calibration_file: Path | None = None  # as camera.calibration_file
+    # Of the scene (skin 0.98); the cameras report temperatures as if it were 1.
+    emissivity: float = 0.98
+    mount: MountConfig = field(default_factory=MountConfig)
+    reopen_max_backoff_s: float = 5.0
+    stall_timeout_s: float = 5.0  # as camera.stall_timeout_s
+    detector: ThermalDetectorParams = field(default_factory=ThermalDetectorParams)
+
+    def __post_init__(self) -> None:
+        from companion.sources.base import CameraError
+        from companion.sources.thermal import parse_thermal_source
+
+        _check_camera(self)
+        try:
+            parse_thermal_source(self.source)
+        except CameraError as exc:
+            raise ValueError(str(exc)) from None
+        if not (math.isfinite(self.emissivity) and 0.1 < self.emissivity <= 1.0):
+            raise ValueError(f"emissivity = {self.emissivity}: must be in (0.1, 1]")
 
 
 @dataclass(frozen=True)
@@ -307,6 +352,7 @@ class Config:
     paths: PathsConfig = field(default_factory=PathsConfig)
     video: VideoConfig = field(default_factory=VideoConfig)
     pictures: PicturesConfig = field(default_factory=PicturesConfig)
+    thermal: ThermalConfig | None = None  # built only when the file has a [thermal] section
 
 
 def _positive(owner: object, name: str) -> None:
@@ -428,12 +474,12 @@ def config_from_dict(data: dict[str, Any], base_dir: Path = Path(".")) -> Config
     for name, value in data.items():
         if not isinstance(value, dict):
             raise ConfigError(f"{name} = {value!r}: expected a table [{name}]")
-        sections[name] = _build(hints[name], value, name, base_dir)
+        sections[name] = _convert(hints[name], value, name, base_dir)
     return Config(**sections)
 
 
 def load_config(path: Path) -> Config:
-    """Load and validate a config file, including its camera calibration file."""
+    """Load and validate a config file, including its cameras' calibration files."""
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -450,6 +496,8 @@ def load_config(path: Path) -> Config:
         from companion.calibration import camera_model
 
         camera_model(config.camera)
+        if config.thermal is not None:
+            camera_model(config.thermal)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     return config

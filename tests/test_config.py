@@ -25,8 +25,12 @@ def _all_keys(cls: type, prefix: str) -> set[str]:
     keys: set[str] = set()
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
-        if dataclasses.is_dataclass(hints[f.name]):
-            keys |= _all_keys(hints[f.name], f"{prefix}.{f.name}" if prefix else f.name)
+        tp = hints[f.name]
+        optional = [a for a in typing.get_args(tp) if a is not type(None)]  # [thermal]: X | None
+        if len(optional) == 1 and dataclasses.is_dataclass(optional[0]):
+            tp = optional[0]
+        if dataclasses.is_dataclass(tp):
+            keys |= _all_keys(tp, f"{prefix}.{f.name}" if prefix else f.name)  # type: ignore[arg-type]
         else:
             keys.add(f"{prefix}.{f.name}")
     return keys

@@ -2,14 +2,32 @@
 
 A thermal frame is a float32 H x W array of temperatures in degrees Celsius, every
 value finite, with its capture time on both clocks (as a colour ``Frame``).
+
+=========================  ==========================================================
+``[thermal] source``       camera
+=========================  ==========================================================
+``lepton``                 the first FLIR Lepton on a PureThermal board, found by its
+                           V4L2 card name (``/sys/class/video4linux/*/name``)
+``lepton:/dev/videoN``     that PureThermal board (UVC, Y16 centi-kelvin, TLinear)
+``infiray:/dev/videoN``    an InfiRay P2 Pro / Topdon TC001 (YUYV, picture above,
+                           kelvin x 64 below)
+``frames:DIR``             recorded ``<unix_time_us>.png`` (16-bit centi-kelvin)
+=========================  ==========================================================
+
+The modules beside this one: ``thermal_raw`` (device values to temperatures, the
+emissivity correction, and the checks every frame passes), ``thermal_live`` (the two
+USB cameras), ``thermal_folder`` (the recorded folder and its writer) and
+``thermal_open`` (``open_thermal``: the configured camera, reopened with backoff).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
+
+from companion.sources.base import CameraError
 
 
 @dataclass(frozen=True)
@@ -37,3 +55,32 @@ class ThermalSource(Protocol):
     def read(self, timeout_s: float) -> ThermalFrame: ...
 
     def close(self) -> None: ...
+
+
+ThermalKind = Literal["lepton", "infiray", "frames"]
+
+
+@dataclass(frozen=True)
+class ThermalSpec:
+    kind: ThermalKind
+    target: str  # "/dev/videoN", a folder, or "" for the first PureThermal found
+
+
+def parse_thermal_source(source: str) -> ThermalSpec:
+    """Understand a ``[thermal] source`` string; CameraError names what is wrong."""
+    text = source.strip()
+    if text == "lepton":
+        return ThermalSpec("lepton", "")
+    for kind in ("lepton", "infiray"):
+        prefix = f"{kind}:"
+        if text.startswith(prefix):
+            device = text[len(prefix) :]
+            if not (device.startswith("/dev/video") and device[10:].isdigit()):
+                raise CameraError(f"source {source!r}: expected {kind}:/dev/videoN")
+            return ThermalSpec("lepton" if kind == "lepton" else "infiray", device)
+    if text.startswith("frames:") and text[7:]:
+        return ThermalSpec("frames", text[7:])
+    raise CameraError(
+        f"source {source!r}: not understood; use lepton, lepton:/dev/videoN, "
+        "infiray:/dev/videoN or frames:DIR"
+    )
