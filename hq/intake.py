@@ -3,7 +3,9 @@
 Order of work for victim reports, which is what makes "acknowledged" mean
 "stored": the main loop decodes a burst of datagrams, ``store_and_ack`` stores all
 their reports in one SQLite transaction (synchronous=FULL), and only after the
-commit returned sends the RESCUE_ACKs. A locked or failing database (a full disk)
+commit returned sends the RESCUE_ACKs: ACCEPTED for what is kept and shown,
+DUPLICATE for what was stored before, REJECTED for a report that does not validate
+or is older than the one held for that robot's victim (kept in the log, not shown). A locked or failing database (a full disk)
 means no acknowledgement: the reports are held in memory and written again every
 second, the robots keep resending, and a full disk is said loudly (ERROR and a
 STATUSTEXT every 30 s, a line on the table) until it is over; then the held
@@ -41,6 +43,15 @@ _MAX_UNSTORED = 10_000  # reports held in memory; beyond, the oldest wait for th
 MAV_SEVERITY_CRITICAL = 2
 
 Received = tuple[IncomingReport, Any, Route]  # the report, its message, the way back
+# ACCEPTED only for what the HQ keeps and shows. A report older (by report_seq) than
+# the one the HQ holds for that robot's victim is in the log but shown nowhere: it is
+# REJECTED ("not applied"), never ACCEPTED, so a robot whose sequence went back (its
+# state lost commits) is not told that a person it reports is at the HQ.
+_ACK_RESULTS = {
+    StoreResult.ACCEPTED: ACK_RESULT_ACCEPTED,
+    StoreResult.DUPLICATE: ACK_RESULT_DUPLICATE,
+    StoreResult.STALE: ACK_RESULT_REJECTED,
+}
 
 
 class ReportIntake:
@@ -122,8 +133,7 @@ class ReportIntake:
             self._store_failing_since = None
             self._changed()
         for (item, msg, route), result in zip(reports, results, strict=True):
-            code = ACK_RESULT_DUPLICATE if result is StoreResult.DUPLICATE else ACK_RESULT_ACCEPTED
-            self._send_ack(msg, route, code)
+            self._send_ack(msg, route, _ACK_RESULTS[result])
             if result is StoreResult.DUPLICATE:
                 self.counters.duplicates += 1
                 continue
@@ -180,7 +190,11 @@ def _report_line(item: IncomingReport, result: StoreResult) -> str:
         if r.lat_deg is not None
         else f"N{r.north_m:+.1f} E{r.east_m:+.1f}"
     )
-    note = " (older than what the HQ holds; kept in the log)" if result is StoreResult.STALE else ""
+    note = (
+        " (older than what the HQ holds: kept in the log, not shown, acknowledged REJECTED)"
+        if result is StoreResult.STALE
+        else ""
+    )
     return (
         f"report robot {r.robot_sysid} victim {r.victim_id} seq {item.report_seq}: "
         f"{r.urgency.name} {r.visibility_pct:.0f}% visible {r.state.name} {where} ±{r.sigma_m:.1f} m{note}"

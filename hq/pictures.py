@@ -2,10 +2,11 @@
 
 ``PictureIntake.on_chunk`` (the HQ's main thread, which owns the registry) takes a
 RESCUE_PICTURE_CHUNK: every field is checked (mavlink_io.picture.Chunk; refused
-with a counter and a rate-limited line), a picture the registry holds (or holds a
-newer one of) is answered STORED when asked, the others are collected; a complete
+with a counter and a rate-limited line), a picture the registry holds (same number,
+size and CRC-32) is answered STORED when asked, one older than the victim's picture
+the registry holds REJECTED (it is not kept), the others are collected; a complete
 picture is joined, checked (CRC-32, JPEG markers: else REJECTED), stored, and only
-then answered STORED. A chunk asking for it gets the bitmap of what arrived.
+then answered STORED: never STORED for what is not kept. A chunk asking for it gets the bitmap of what arrived.
 
 ``PictureAssembler`` holds the partial pictures: ``add`` returns the picture's
 ``Reassembly`` (complete or not). Memory is bounded whatever robots send: at most
@@ -21,6 +22,7 @@ from __future__ import annotations
 import logging
 import sqlite3
 import time
+import zlib
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -151,7 +153,11 @@ class PictureIntake:
         except sqlite3.Error as exc:
             log.debug("cannot read pictures: %s", exc)
             return False
-        if stored is not None and stored >= chunk.picture_id:
+        if stored is not None and stored > chunk.picture_id:  # a newer one is kept
+            if chunk.ack_request:
+                self._answer(answer, chunk.picture_id, picture.RESULT_REJECTED, frozenset())
+            return False
+        if stored == chunk.picture_id and self._holds(robot, chunk):
             if chunk.ack_request:  # the robot missed our STORED
                 self._answer(answer, chunk.picture_id, picture.RESULT_STORED, _ALL)
             return False
@@ -165,6 +171,13 @@ class PictureIntake:
                 self._answer(answer, chunk.picture_id, picture.RESULT_PARTIAL, r.received)
             return False
         return self._complete(robot, chunk, r, answer)
+
+    def _holds(self, robot: int, chunk: Chunk) -> bool:
+        """Whether the registry keeps this very picture (its number and its bytes): a
+        robot whose state lost commits (a power cut) may give a number again to
+        another picture, which is then collected and stored, not answered STORED."""
+        jpeg = self.registry.picture(robot, chunk.victim_id)
+        return jpeg is not None and (len(jpeg), zlib.crc32(jpeg)) == (chunk.size, chunk.crc32)
 
     def _complete(self, robot: int, chunk: Chunk, r: Reassembly, answer: Answer) -> bool:
         try:
@@ -184,9 +197,10 @@ class PictureIntake:
             log.warning("picture %d of robot %d not stored: %s", chunk.picture_id, robot, exc)
             return False
         self.assembler.drop(robot, chunk.picture_id)
-        self._answer(answer, chunk.picture_id, picture.RESULT_STORED, _ALL)
-        if not fresh:
+        if not fresh:  # a newer picture of that victim is kept: this one is not
+            self._answer(answer, chunk.picture_id, picture.RESULT_REJECTED, frozenset())
             return False
+        self._answer(answer, chunk.picture_id, picture.RESULT_STORED, _ALL)
         self.counters.stored += 1
         self._event(
             f"picture robot {robot} victim {chunk.victim_id} #{chunk.picture_id}: {len(jpeg)} bytes"

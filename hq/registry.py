@@ -328,14 +328,17 @@ class Registry:
     def store_picture(
         self, robot_sysid: int, victim_id: int, picture_id: int, jpeg: bytes, now_unix_s: float
     ) -> bool:
-        """Keep a robot's picture of its victim unless one as new (same or higher
-        picture_id) is stored; True when stored. RegistryError as for reports."""
+        """Keep a robot's picture of its victim unless a newer one (higher picture_id)
+        or this very one is stored; True when stored. The same picture_id with other
+        bytes (a robot that lost its last commits gave the number out again) replaces
+        the stored one: it is the robot's newest. RegistryError as for reports."""
         with transaction(self._db, self.path) as db:
             cur = db.execute(
                 "INSERT INTO pictures (robot_sysid, victim_id, picture_id, received_unix_s, jpeg)"
                 " VALUES (?, ?, ?, ?, ?) ON CONFLICT (robot_sysid, victim_id) DO UPDATE SET"
                 " picture_id=excluded.picture_id, received_unix_s=excluded.received_unix_s,"
                 " jpeg=excluded.jpeg WHERE excluded.picture_id > pictures.picture_id"
+                " OR (excluded.picture_id = pictures.picture_id AND excluded.jpeg != pictures.jpeg)"
                 " OR typeof(pictures.picture_id) != 'integer'",  # a damaged row is replaced
                 (robot_sysid, victim_id, picture_id, now_unix_s, jpeg),
             )

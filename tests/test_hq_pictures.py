@@ -78,9 +78,10 @@ def test_a_picture_in_chunks_is_stored_acknowledged_and_served(start_hq, tunnel:
         assert "1500 bytes" in line
         robot.send(chunks[0].asking().to_msg(m))  # the robot missed the STORED: told again
         assert _picture_ack(robot, 50).result == STORED
-        # An older picture of the same victim is not wanted any more.
+        # An older picture of the same victim is not wanted any more: not kept, so
+        # never answered STORED.
         robot.send(picture.split(49, 7, _jpeg(300, 5))[0].asking().to_msg(m))
-        assert _picture_ack(robot, 49).result == STORED
+        assert _picture_ack(robot, 49).result == REJECTED
         # The console shows it on the victim's card, at a versioned address.
         deadline = time.monotonic() + 10.0
         while True:
@@ -152,7 +153,8 @@ def test_a_version_2_registry_gains_the_pictures_table(tmp_path: Path) -> None:
     db.close()
     with Registry(path) as reg:
         assert reg.store_picture(1, 2, 3, _jpeg(100), 0.0)
-        assert not reg.store_picture(1, 2, 3, _jpeg(100, 2), 0.0)  # not newer
+        assert not reg.store_picture(1, 2, 2, _jpeg(100, 2), 0.0)  # older
+        assert not reg.store_picture(1, 2, 3, _jpeg(100), 0.0)  # this very one
         assert reg.picture(1, 2) == _jpeg(100)
     db = sqlite3.connect(path, isolation_level=None)
     assert db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "3"
