@@ -5,6 +5,7 @@ A rescue rover (or its operator) keeps off:
 - debris taller than ``climb_m`` (cartons, racking, slabs, beams, pallets);
 - every piece of debris that lies on a victim, however flat: a pile over a person;
 - every victim's body;
+- the solid warm objects (a radiator, a pipe, machinery, a dog);
 - the walls at the floor's edge;
 
 each grown by ``clearance_m`` (half the rover's width and a margin). Without this the
@@ -64,6 +65,9 @@ class Obstacles:
             self._fill(footprint, piece.polygon)
             if piece.height_m > p.climb_m or (footprint & bodies).any():
                 solid |= footprint
+        for thing in world.warm_objects:  # a radiator, pipe, machine or dog is in the way
+            if thing.solid:
+                self._fill(solid, thing.polygon)
         free = np.pad(1 - solid, 1, constant_values=0)  # beyond the floor: walls
         # Distance (m) from each cell to the nearest blocked one.
         dist = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]

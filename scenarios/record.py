@@ -2,7 +2,10 @@
 
     DIR/mission.tlog        what the rover sent: 8-byte big-endian Unix µs + packet
     DIR/frames/<µs>.jpg     camera frames named by capture time on the same clock
-    DIR/camera.toml         the [camera] config the frames were rendered with
+    DIR/thermal/<µs>.png    thermal frames (16-bit centi-kelvin, 8.7 frames/s, the
+                            Lepton beside the colour camera) on the same clock,
+                            unless ``thermal`` is off
+    DIR/camera.toml         the [camera] (and [thermal]) config the frames were rendered with
     DIR/world.toml          the world
     DIR/ground_truth.json   victims (position, urgency, visibility, first sight), route
 
@@ -26,9 +29,20 @@ from typing import Any
 from fusion.camera import CameraModel
 from mavlink_io.convert import usec_from_unix_s
 from scenarios import autopilot as ap
-from scenarios.camera import default_camera, write_camera_toml
+from scenarios.camera import (
+    THERMAL_FPS,
+    default_camera,
+    default_thermal_camera,
+    write_camera_toml,
+)
 from scenarios.motion import Trajectory, route_of
 from scenarios.render import MIN_VIEW_PX, Renderer, RenderOptions, encode_jpeg
+from scenarios.thermal import (
+    MIN_WARM_VIEW_PX,
+    ThermalOptions,
+    ThermalRenderer,
+    encode_centikelvin_png,
+)
 from scenarios.world import World, save_world
 
 log = logging.getLogger(__name__)
@@ -48,6 +62,7 @@ class RecordResult:
     out_dir: Path
     frames: int
     packets: int
+    thermal_frames: int
     duration_s: float
     start_unix_s: float
 
@@ -68,10 +83,15 @@ def record(
     jpeg_quality: int = 85,
     render_options: RenderOptions | None = None,
     min_view_px: int = MIN_VIEW_PX,
+    thermal: bool = True,
+    thermal_camera: CameraModel | None = None,
+    thermal_fps: float = THERMAL_FPS,
+    thermal_options: ThermalOptions | None = None,
 ) -> RecordResult:
     """Simulate and write a mission (see the module docstring). Deterministic for the
-    world's seed and start_unix_s."""
+    world's seed and start_unix_s. ``thermal``: also the thermal camera's frames."""
     camera = camera or default_camera()
+    thermal_camera = thermal_camera or default_thermal_camera()
     start = time.time() if start_unix_s is None else start_unix_s
     out_dir = Path(out_dir)
     frames_dir = out_dir / "frames"
@@ -99,10 +119,18 @@ def record(
     n_frames = n_packets = 0
     frame_period = 1.0 / fps
     next_frame = 0.5 * frame_period  # frames fall between telemetry instants
+    warm = _WarmView()
+    thermal_dir = out_dir / "thermal"
+    thermal_renderer = None
+    next_thermal = math.inf
+    if thermal:
+        thermal_dir.mkdir(parents=True, exist_ok=True)
+        thermal_renderer = ThermalRenderer(world, thermal_camera, options=thermal_options)
+        next_thermal = 0.25 / thermal_fps  # off the colour frames' and telemetry instants
     t = 0.0
     with (out_dir / "mission.tlog").open("wb") as tlog:
         while True:
-            t = min(pilot.next_due_s(), next_frame)
+            t = min(pilot.next_due_s(), next_frame, next_thermal)
             if t > duration_s:
                 break
             t = max(t, 0.0)
@@ -120,16 +148,93 @@ def record(
                         first_seen.setdefault(vid, usec / 1e6)
                 n_frames += 1
                 next_frame = (n_frames + 0.5) * frame_period
-    write_camera_toml(camera, out_dir / "camera.toml", f"frames:{frames_dir.resolve()}", fps)
+            if thermal_renderer is not None and next_thermal <= t:
+                usec = usec_from_unix_s(start + next_thermal)
+                shot = thermal_renderer.render(
+                    trajectory.pose_at(next_thermal), next_thermal, frame_key=warm.frames
+                )
+                (thermal_dir / f"{usec}.png").write_bytes(encode_centikelvin_png(shot.temps_c))
+                warm.add(shot.warm_px, usec / 1e6, shot.frozen)
+                next_thermal = (warm.frames + 0.25) / thermal_fps
+    write_camera_toml(
+        camera,
+        out_dir / "camera.toml",
+        f"frames:{frames_dir.resolve()}",
+        fps,
+        (thermal_camera, f"frames:{thermal_dir.resolve()}", thermal_fps) if thermal else None,
+    )
     save_world(world, out_dir / "world.toml")
     truth = _truth(
         world, trajectory, start, duration_s, fps, min_view_px, first_seen, frames_in_view, max_px
     )
+    truth["thermal"] = warm.truth(world, thermal_fps) if thermal else None
+    if thermal:  # in view of either camera: the scorer takes the earlier
+        for entry in truth["victims"]:
+            entry["warm_visibility_pct"] = round(
+                world.victim(entry["victim_id"]).warm_visibility_pct, 3
+            )
+            entry["first_warm_in_view_unix_s"] = warm.first_seen.get(entry["victim_id"])
     (out_dir / "ground_truth.json").write_text(json.dumps(truth, indent=1) + "\n", encoding="utf-8")
     log.info(
-        "recorded %d frames and %d packets (%.1f s) in %s", n_frames, n_packets, duration_s, out_dir
+        "recorded %d frames, %d thermal frames and %d packets (%.1f s) in %s",
+        n_frames,
+        warm.frames,
+        n_packets,
+        duration_s,
+        out_dir,
     )
-    return RecordResult(out_dir, n_frames, n_packets, duration_s, start)
+    return RecordResult(out_dir, n_frames, n_packets, warm.frames, duration_s, start)
+
+
+class _WarmView:
+    """What the thermal camera saw of each victim, for the ground truth."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.frozen = 0
+        self.first_seen: dict[int, float] = {}
+        self.in_view: dict[int, int] = {}
+        self.max_px: dict[int, int] = {}
+
+    def add(self, warm_px: dict[int, int], t_unix_s: float, frozen: bool) -> None:
+        self.frames += 1
+        if frozen:  # a flat-field frame shows nothing new
+            self.frozen += 1
+            return
+        for vid, px in warm_px.items():
+            self.max_px[vid] = max(self.max_px.get(vid, 0), px)
+            if px >= MIN_WARM_VIEW_PX:
+                self.in_view[vid] = self.in_view.get(vid, 0) + 1
+                self.first_seen.setdefault(vid, t_unix_s)
+
+    def truth(self, world: World, fps: float) -> dict[str, Any]:
+        return {
+            "fps": fps,
+            "frames": self.frames,
+            "flat_field_frames": self.frozen,
+            "min_warm_view_px": MIN_WARM_VIEW_PX,
+            "ambient_c": world.floor.temperature_c,
+            "victims": [
+                {
+                    "victim_id": v.victim_id,
+                    "warm_visibility_pct": round(v.warm_visibility_pct, 3),
+                    "skin_c": v.skin_c,
+                    "first_warm_in_view_unix_s": self.first_seen.get(v.victim_id),
+                    "frames_warm_in_view": self.in_view.get(v.victim_id, 0),
+                    "max_warm_px": self.max_px.get(v.victim_id, 0),
+                }
+                for v in world.victims
+            ],
+            "warm_objects": [
+                {
+                    "kind": w.kind,
+                    "north_m": w.north_m,
+                    "east_m": w.east_m,
+                    "temperature_c": w.temperature_c,
+                }
+                for w in world.warm_objects
+            ],
+        }
 
 
 def _truth(

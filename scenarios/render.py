@@ -79,6 +79,48 @@ def encode_jpeg(image: np.ndarray, quality: int = 85) -> bytes:
     return buf.tobytes()
 
 
+def camera_rays(camera: CameraModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit rays of every pixel in the camera frame, distortion removed: three (H, W)."""
+    k = camera.intrinsics
+    u, v = np.meshgrid(np.arange(k.width_px, dtype=float), np.arange(k.height_px, dtype=float))
+    rays = camera.rays_camera(np.column_stack([u.ravel(), v.ravel()]))
+    return (
+        np.ascontiguousarray(rays[:, 0].reshape(k.height_px, k.width_px), np.float32),
+        np.ascontiguousarray(rays[:, 1].reshape(k.height_px, k.width_px), np.float32),
+        np.ascontiguousarray(rays[:, 2].reshape(k.height_px, k.width_px), np.float32),
+    )
+
+
+def floor_rays(
+    camera: CameraModel, rays_cam: tuple[np.ndarray, np.ndarray, np.ndarray], pose: PoseLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel: floor north, east and range (m; inf off the floor), sin(grazing), the
+    unit NED rays (H, W, 3), the camera centre (NED) and R_ned_cam, for a pose."""
+    r_nb = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    centre, r_nc = camera.camera_pose_ned(np.array([pose.north_m, pose.east_m, pose.down_m]), r_nb)
+    # Rays in NED, component by component (cheaper than a BLAS call for 3x3).
+    r = r_nc.astype(np.float32)
+    cx, cy, cz = rays_cam
+    dn = cx * r[0, 0] + cy * r[0, 1] + cz * r[0, 2]
+    de = cx * r[1, 0] + cy * r[1, 1] + cz * r[1, 2]
+    dz = cx * r[2, 0] + cy * r[2, 1] + cz * r[2, 2]  # sine of the angle below the horizon
+    height = -float(centre[2])  # camera height above the floor (down = 0)
+    hits = dz > 1e-4
+    if height <= 0:
+        hits[:] = False
+    t = np.full(dz.shape, np.inf, np.float32)
+    np.divide(np.float32(height), dz, out=t, where=hits)
+    with np.errstate(invalid="ignore"):  # 0 * inf off the floor; set below
+        north = dn * t
+        east = de * t
+    north += np.float32(centre[0])
+    east += np.float32(centre[1])
+    north[~hits] = -1e6
+    east[~hits] = -1e6
+    rays = np.stack([dn, de, dz], axis=-1).astype(np.float64)  # (H, W, 3)
+    return north, east, t, np.clip(dz, 1e-4, 1.0), rays, centre, r_nc
+
+
 class Renderer:
     """Renders frames of one world through one camera. Not thread-safe."""
 
@@ -102,13 +144,7 @@ class Renderer:
         self.solids = Solids(world, self.raster, camera)
         k = camera.intrinsics
         self.size = (k.width_px, k.height_px)
-        u, v = np.meshgrid(np.arange(k.width_px, dtype=float), np.arange(k.height_px, dtype=float))
-        rays = camera.rays_camera(np.column_stack([u.ravel(), v.ravel()]))
-        # Unit rays in the camera frame, distortion removed: three (H, W) components.
-        self._rays_cam = tuple(
-            np.ascontiguousarray(rays[:, i].reshape(k.height_px, k.width_px), np.float32)
-            for i in range(3)
-        )
+        self._rays_cam = camera_rays(camera)
         self._focal_px = 0.5 * (k.fx_px + k.fy_px)
         self._seed = seed
         self._count = 0
@@ -129,31 +165,7 @@ class Renderer:
         self, pose: PoseLike
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """floor_maps, and the unit NED rays (H, W, 3), camera centre and R_ned_cam."""
-        r_nb = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
-        centre, r_nc = self.camera.camera_pose_ned(
-            np.array([pose.north_m, pose.east_m, pose.down_m]), r_nb
-        )
-        # Rays in NED, component by component (cheaper than a BLAS call for 3x3).
-        r = r_nc.astype(np.float32)
-        cx, cy, cz = self._rays_cam
-        dn = cx * r[0, 0] + cy * r[0, 1] + cz * r[0, 2]
-        de = cx * r[1, 0] + cy * r[1, 1] + cz * r[1, 2]
-        dz = cx * r[2, 0] + cy * r[2, 1] + cz * r[2, 2]  # sine of the angle below the horizon
-        height = -float(centre[2])  # camera height above the floor (down = 0)
-        hits = dz > 1e-4
-        if height <= 0:
-            hits[:] = False
-        t = np.full(dz.shape, np.inf, np.float32)
-        np.divide(np.float32(height), dz, out=t, where=hits)
-        with np.errstate(invalid="ignore"):  # 0 * inf off the floor; set below
-            north = dn * t
-            east = de * t
-        north += np.float32(centre[0])
-        east += np.float32(centre[1])
-        north[~hits] = -1e6
-        east[~hits] = -1e6
-        rays = np.stack([dn, de, dz], axis=-1).astype(np.float64)  # (H, W, 3)
-        return north, east, t, np.clip(dz, 1e-4, 1.0), rays, centre, r_nc
+        return floor_rays(self.camera, self._rays_cam, pose)
 
     # -- rendering -----------------------------------------------------------------
 

@@ -331,10 +331,22 @@ def truth_from_dict(data: Any, path: Path = Path("ground_truth.json")) -> Ground
                 urgency=_urgency(v, where),
                 visible_north_m=_field(v, "visible_north_m", where, float, optional=True),
                 visible_east_m=_field(v, "visible_east_m", where, float, optional=True),
-                first_in_view_unix_s=_field(v, "first_in_view_unix_s", where, float, optional=True),
+                first_in_view_unix_s=_first_in_view(v, where),
             )
         )
     return GroundTruth(tuple(out), all("first_in_view_unix_s" in v for v in items))
+
+
+def _first_in_view(item: dict[str, Any], where: str) -> float | None:
+    """The first time either camera saw the victim: the colour camera's
+    ``first_in_view_unix_s`` or, in a mission recorded with the thermal camera, its
+    ``first_warm_in_view_unix_s``, whichever came first."""
+    seen = [
+        _field(item, key, where, float, optional=True)
+        for key in ("first_in_view_unix_s", "first_warm_in_view_unix_s")
+    ]
+    times = [t for t in seen if t is not None]
+    return min(times) if times else None
 
 
 def report_from_dict(data: Any, path: Path = Path("report.json")) -> list[ReportedVictim]:

@@ -11,6 +11,12 @@ footprint, scenarios.world) and what the camera sees agree.
 
 Which victim each pixel shows is returned, so the renderer's ground truth ("in
 view", visible pixels) counts what is really drawn, occlusion included.
+
+The solid warm objects (scenarios.world.WarmObject: a radiator panel and machinery
+as prisms, a pipe as a capsule, a lying dog as ellipsoids and a tail) are drawn as
+plain shapes in their colour. ``trace`` is the ray casting and z-buffer alone (what
+each pixel hits: owner, material, depth, normal); the thermal renderer
+(scenarios.thermal) uses it through any camera and maps what is hit to temperatures.
 """
 
 from __future__ import annotations
@@ -24,9 +30,10 @@ from numpy.typing import NDArray
 from fusion.camera import CameraModel
 from scenarios import body3d, shapes
 from scenarios.raster import FloorRaster
-from scenarios.world import Debris, Victim, World, compute_visibility
+from scenarios.world import Debris, Victim, WarmObject, World, compute_visibility
 
 F = NDArray[np.float64]
+PROP_BASE = 1 << 20  # owner ids of warm objects' parts: PROP_BASE + index into props
 
 _PILE_CLEARANCE_M = 0.04  # a pile's top above the body it buries
 _SOLID_MIN_M = 0.02  # thinner debris is drawn flat, by the floor raster
@@ -76,6 +83,70 @@ def _prism(d: Debris, victims: tuple[Victim, ...], bodies: list[body3d.Body3D]) 
     )
 
 
+def _box_prism(poly: F, bottom_m: float, top_m: float) -> _Prism:
+    c2 = poly.mean(axis=0)
+    r = float(np.linalg.norm(poly - c2, axis=1).max())
+    corners = np.vstack(
+        [
+            np.column_stack([poly, np.full(len(poly), -bottom_m)]),
+            np.column_stack([poly, np.full(len(poly), -top_m)]),
+        ]
+    )
+    return _Prism(
+        shapes.prism_planes(poly, bottom_m, top_m),
+        corners,
+        top_m,
+        np.array([c2[0], c2[1], -(top_m + bottom_m) / 2]),
+        math.hypot(r, (top_m - bottom_m) / 2),
+    )
+
+
+def prop_parts(w: WarmObject) -> list[body3d.Solid | _Prism]:
+    """The solids a solid warm object is drawn with (none for warmth on the floor)."""
+    h = w.heading_rad
+    u = np.array([math.cos(h), math.sin(h), 0.0])
+    v = np.array([-math.sin(h), math.cos(h), 0.0])
+    down = np.array([0.0, 0.0, 1.0])
+    centre = np.array([w.north_m, w.east_m, 0.0])
+    if w.kind in ("radiator", "machinery"):
+        return [_box_prism(w.polygon, w.elevation_m, w.elevation_m + w.height_m)]
+    if w.kind == "pipe":
+        r = w.width_m / 2
+        axis = centre - down * max(w.elevation_m, r)
+        a, b = axis - u * w.length_m / 2, axis + u * w.length_m / 2
+        return [body3d.Solid("capsule", 0, a, b, r, np.eye(3), "pipe")]
+    if w.kind == "dog":  # lying down: a body, a head at the front, a tail
+        k = w.length_m / 0.8
+        half_w = w.width_m / 2
+
+        def ell(name: str, c: F, ax: float, ay: float, az: float) -> body3d.Solid:
+            axes = np.column_stack([u * ax, v * ay, down * az])
+            return body3d.Solid("ellipsoid", 0, c, c, max(ax, ay, az), axes, name)
+
+        body_c = centre - u * 0.05 * k - down * 0.12 * k
+        head_c = centre + u * 0.3 * k - down * 0.15 * k
+        tail_a = centre - u * 0.33 * k - down * 0.06 * k
+        tail_b = tail_a - u * 0.12 * k + v * 0.1 * k - down * 0.03 * k
+        return [
+            ell("dog_body", body_c, 0.3 * k, half_w, 0.12 * k),
+            ell("dog_head", head_c, 0.11 * k, 0.075 * k, 0.08 * k),
+            ell("dog_snout", head_c + u * 0.1 * k + down * 0.02 * k, 0.06 * k, 0.04 * k, 0.04 * k),
+            body3d.Solid("capsule", 0, tail_a, tail_b, 0.025 * k, np.eye(3), "dog_tail"),
+        ]
+    return []
+
+
+@dataclass(frozen=True)
+class Hits:
+    """What each pixel's ray hits first (``Solids.trace``). owner: 0 none (the floor or
+    nothing), k >= 1 body k-1, -k debris prism k-1, PROP_BASE + q warm-object part q."""
+
+    owner: NDArray[np.int32]  # (H, W)
+    depth_m: F  # (H, W) distance along the ray (the floor's where owner is 0)
+    normal: NDArray[np.float32]  # (H, W, 3)
+    material: NDArray[np.int8]  # (H, W) a body's material (body3d.SKIN ...), else 0
+
+
 def _cone_rect(
     rays: F, oc: F, radius_m: float, window: tuple[int, int, int, int]
 ) -> tuple[int, int, int, int] | None:
@@ -113,7 +184,8 @@ def _anchors(item: body3d.Solid | _Prism) -> tuple[F, float, F, float]:
 class Solids:
     """The world's bodies and debris prisms, ready to draw. Built once per world."""
 
-    def __init__(self, world: World, raster: FloorRaster, camera: CameraModel) -> None:
+    def __init__(self, world: World, raster: FloorRaster | None, camera: CameraModel) -> None:
+        """``raster``: the floor's paint, for the debris colour (None: ``trace`` only)."""
         self.world = world
         self.raster = raster
         self.camera = camera
@@ -122,7 +194,22 @@ class Solids:
         self.victim_ids = tuple(v.victim_id for v in world.victims)
         prisms = [_prism(d, world.victims, self.bodies) for d in world.debris]
         # Thinner pieces (sheets, tarps, cables, paint) stay in the floor raster.
-        self.prisms = [pr for pr in prisms if pr.top_m >= _SOLID_MIN_M]
+        keep = [i for i, pr in enumerate(prisms) if pr.top_m >= _SOLID_MIN_M]
+        self.prisms = [prisms[i] for i in keep]
+        self.prism_debris = [world.debris[i] for i in keep]  # the piece each prism draws
+        # The solid warm objects' parts, and which object each part belongs to.
+        self.props: list[body3d.Solid | _Prism] = []
+        self.prop_object: list[int] = []
+        for q, w in enumerate(world.warm_objects):
+            parts = prop_parts(w)
+            self.props += parts
+            self.prop_object += [q] * len(parts)
+        self._items: list[tuple[int, body3d.Solid | _Prism]] = []
+        for k, body in enumerate(self.bodies, start=1):
+            self._items += [(k, solid) for solid in body.solids]
+        self._items += [(-k, pr) for k, pr in enumerate(self.prisms, start=1)]
+        self._items += [(PROP_BASE + q, part) for q, part in enumerate(self.props)]
+        self._anchors = [_anchors(it) for _, it in self._items]
 
     def _rects(
         self, anchors: list[tuple[F, float, F, float]], cam_centre: F, r_nc: F, rays: F
@@ -167,33 +254,19 @@ class Solids:
             i += n
         return out
 
-    def draw(
-        self,
-        signal: np.ndarray,
-        depth_m: np.ndarray,
-        cam_centre: F,
-        r_nc: F,
-        rays: F,
-        headlight: float,
-    ) -> dict[int, int]:
-        """Draw over ``signal`` (H, W, 3 float, 0..1) in place; visible pixels per victim.
-
-        ``depth_m``: the floor's distance along each ray (inf off the floor), (H, W).
-        ``rays``: unit NED rays (H, W, 3).
-        """
+    def trace(self, depth_m: np.ndarray, cam_centre: F, r_nc: F, rays: F) -> Hits:
+        """The first hit of every ray among the bodies, debris prisms and warm objects,
+        nearer than the floor. ``depth_m``: the floor's distance along each ray (inf
+        off the floor), (H, W); ``rays``: unit NED rays (H, W, 3)."""
         h, w = depth_m.shape
         depth = depth_m.astype(np.float64)
-        owner = np.zeros((h, w), np.int32)  # 0 floor, k >= 1 body k-1, -k prism k-1
+        owner = np.zeros((h, w), np.int32)
         normal = np.zeros((h, w, 3), np.float32)
         material = np.zeros((h, w), np.int8)
-        items: list[tuple[int, body3d.Solid | _Prism]] = []
-        for k, body in enumerate(self.bodies, start=1):
-            items += [(k, solid) for solid in body.solids]
-        items += [(-k, pr) for k, pr in enumerate(self.prisms, start=1)]
-        if not items:
-            return {}
-        rects = self._rects([_anchors(it) for _, it in items], cam_centre, r_nc, rays)
-        for (item_id, item), rect in zip(items, rects, strict=True):
+        if not self._items:
+            return Hits(owner, depth, normal, material)
+        rects = self._rects(self._anchors, cam_centre, r_nc, rays)
+        for (item_id, item), rect in zip(self._items, rects, strict=True):
             if rect is None:
                 continue
             x0, y0, x1, y1 = rect
@@ -211,15 +284,32 @@ class Solids:
             normal[y0:y1, x0:x1][closer] = nrm.reshape(y1 - y0, x1 - x0, 3)[closer]
             if isinstance(item, body3d.Solid):
                 material[y0:y1, x0:x1][closer] = item.material
-        hit = np.nonzero(owner.ravel())[0]
+        return Hits(owner, depth, normal, material)
+
+    def draw(
+        self,
+        signal: np.ndarray,
+        depth_m: np.ndarray,
+        cam_centre: F,
+        r_nc: F,
+        rays: F,
+        headlight: float,
+    ) -> dict[int, int]:
+        """Draw over ``signal`` (H, W, 3 float, 0..1) in place; visible pixels per victim.
+
+        ``depth_m``: the floor's distance along each ray (inf off the floor), (H, W).
+        ``rays``: unit NED rays (H, W, 3).
+        """
+        hits = self.trace(depth_m, cam_centre, r_nc, rays)
+        hit = np.nonzero(hits.owner.ravel())[0]
         if len(hit) == 0:
             return {}
-        t = depth.ravel()[hit]
+        t = hits.depth_m.ravel()[hit]
         d = rays.reshape(-1, 3)[hit]
         p = cam_centre + d * t[:, None]
         albedo = np.empty((len(hit), 3))
-        who = owner.ravel()[hit]
-        mat = material.ravel()[hit]
+        who = hits.owner.ravel()[hit]
+        mat = hits.material.ravel()[hit]
         for k, body in enumerate(self.bodies, start=1):
             m = who == k
             if m.any():
@@ -227,20 +317,29 @@ class Solids:
         debris = who < 0
         if debris.any():
             albedo[debris] = self._debris_colour(p[debris])
-        n = normal.reshape(-1, 3)[hit].astype(np.float64)
+        prop = who >= PROP_BASE
+        if prop.any():
+            colours = np.array(
+                [self.world.warm_objects[q].colour_rgb[::-1] for q in self.prop_object], float
+            )
+            albedo[prop] = colours[who[prop] - PROP_BASE]
+        n = hits.normal.reshape(-1, 3)[hit].astype(np.float64)
         zone = self.world.light_at(p[:, 0], p[:, 1])
         sky = _SKY + (1.0 - _SKY) * np.clip(-n[:, 2], 0.0, 1.0)
         facing = np.clip(-(n * d).sum(axis=1), 0.0, 1.0)
         light = zone * sky + headlight * facing * np.minimum(1.0, 1.0 / np.square(t))
         flat = signal.reshape(-1, 3)
         flat[hit] = (albedo * (light / 255.0)[:, None]).astype(np.float32)
-        counts = np.bincount(who[who > 0], minlength=len(self.bodies) + 1)
+        body_px = who[(who > 0) & (who < PROP_BASE)]
+        counts = np.bincount(body_px, minlength=len(self.bodies) + 1)
         return {
             vid: int(counts[k]) for k, vid in enumerate(self.victim_ids, start=1) if counts[k] > 0
         }
 
     def _debris_colour(self, p: F) -> F:
         """The debris surface colour: the floor raster's paint at the point's footprint."""
+        if self.raster is None:
+            raise ValueError("Solids built without a floor raster cannot draw")
         res = self.raster.res_m
         rows, cols = self.raster.bgrl.shape[:2]
         r = np.clip((p[:, 0] / res).astype(int), 0, rows - 1)

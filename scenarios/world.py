@@ -10,8 +10,18 @@ uncovered body pixels counted. It is computed when the World is built, so a Worl
 always carries the truth for its own debris. The urgency class follows from it
 (fusion.types.Urgency.from_visibility).
 
+For the thermal camera (scenarios.thermal) a world also has temperatures: the
+floor's ambient (``Floor.temperature_c``, with gentle spatial variation), each
+victim's skin (``Victim.skin_c``), how much of a body's heat shows through a piece
+of debris lying on it (``Debris.heat_through``: thin cover such as ``cloth`` and
+``dust`` lets some through; slabs and piles none), and warm things that are not
+people (``WarmObject``: a radiator, a pipe, machinery, a dog, a heated patch of
+floor, the fading imprint where a person lay). ``warm_visibility_pct`` is the share
+of a victim's skin and clothing not under opaque debris (thin cover counts as seen).
+
 Worlds are stored as TOML (``load_world`` / ``save_world``); the seven scenarios of
-the first prototype ship as presets (``preset(name)``, ``PRESETS``).
+the first prototype and four thermal ones ship as presets (``preset(name)``,
+``PRESETS``).
 """
 
 from __future__ import annotations
@@ -20,6 +30,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -42,6 +53,10 @@ PRESETS: tuple[str, ...] = (
     "dark",
     "mixed",
     "skin_debris",
+    "thermal_dark",
+    "thermal_covered",
+    "thermal_warm_things",
+    "thermal_warm_things2",
 )
 DEFAULT_ORIGIN = GlobalOrigin(lat_deg=40.071, lon_deg=-105.2296, alt_m=1580.0)
 
@@ -75,9 +90,17 @@ class Floor:
     colour_rgb: RGB = (125, 120, 112)  # dusty concrete
     texture_contrast: float = 0.18  # relative amplitude of stains and grain
     ambient_light: float = 1.0  # light outside every light zone, 0..1
+    temperature_c: float = 18.0  # ambient: the floor and debris, for the thermal camera
+    temperature_variation_c: float = 0.5  # std of its gentle spatial variation
 
     def __post_init__(self) -> None:
         _check_rgb(self.colour_rgb, "floor.colour")
+        if not -30.0 <= self.temperature_c <= 50.0:
+            raise WorldError(f"floor.temperature_c = {self.temperature_c}: must be in [-30, 50]")
+        if not 0.0 <= self.temperature_variation_c <= 5.0:
+            raise WorldError(
+                f"floor.temperature_variation_c = {self.temperature_variation_c}: must be in [0, 5]"
+            )
         if not 0.0 <= self.texture_contrast <= 1.0:
             raise WorldError(f"floor.texture_contrast = {self.texture_contrast}: must be in [0, 1]")
         if not 0.0 < self.ambient_light <= 1.0:
@@ -91,12 +114,21 @@ class Debris:
     renderer raises it above the body, so what it covers is hidden from every view."""
 
     kind: str  # slab | piece | plank | beam | sheet | carton | pallet | plasterboard | tarp
-    # | cable | racking | lookalike_skin | lookalike_cloth
+    # | cable | racking | lookalike_skin | lookalike_cloth | cloth | dust
     colour_rgb: RGB
     polygon_ne_m: tuple[PointNE, ...]
+    # Share of a covered body's heat (above ambient) that shows through the piece, 0..1;
+    # NaN: by kind (cloth 0.55, dust 0.7, every other kind 0: slabs and piles hide it).
+    heat_through: float = math.nan
 
     def __post_init__(self) -> None:
         _check_rgb(self.colour_rgb, f"debris ({self.kind}).colour")
+        if math.isnan(self.heat_through):
+            object.__setattr__(self, "heat_through", _HEAT_THROUGH.get(self.kind, 0.0))
+        if not 0.0 <= self.heat_through <= 1.0:
+            raise WorldError(
+                f"debris ({self.kind}).heat_through = {self.heat_through}: must be in [0, 1]"
+            )
         if len(self.polygon_ne_m) < 3:
             raise WorldError(f"debris ({self.kind}).polygon_ne_m needs at least 3 points")
         if not all(abs(v) <= MAX_COORD_M for p in self.polygon_ne_m for v in p):
@@ -116,12 +148,7 @@ class Debris:
         heading_rad: float,
     ) -> Debris:
         """A rectangle centred at (north, east), its length along heading_rad."""
-        c, s = math.cos(heading_rad), math.sin(heading_rad)
-        pts = []
-        for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
-            x, y = a * length_m / 2, b * width_m / 2
-            pts.append((round(north_m + c * x - s * y, 4), round(east_m + s * x + c * y, 4)))
-        return cls(kind, colour_rgb, tuple(pts))
+        return cls(kind, colour_rgb, _box(north_m, east_m, length_m, width_m, heading_rad))
 
     @property
     def polygon(self) -> np.ndarray:
@@ -148,7 +175,111 @@ _DEBRIS_HEIGHT_M = {
     "tarp": 0.01,
     "cable": 0.02,
     "racking": 2.2,
+    "cloth": 0.01,
+    "dust": 0.01,
 }
+_HEAT_THROUGH = {"cloth": 0.55, "dust": 0.7}
+
+
+def _box(
+    north_m: float, east_m: float, length_m: float, width_m: float, heading_rad: float
+) -> tuple[PointNE, ...]:
+    c, s = math.cos(heading_rad), math.sin(heading_rad)
+    pts = []
+    for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+        x, y = a * length_m / 2, b * width_m / 2
+        pts.append((round(north_m + c * x - s * y, 4), round(east_m + s * x + c * y, 4)))
+    return tuple(pts)
+
+
+WARM_KINDS = ("radiator", "pipe", "machinery", "dog", "heated_floor", "imprint")
+# Per kind: temperature_c, length_m, width_m, height_m, elevation_m, colour.
+WARM_DEFAULTS: dict[str, tuple[float, float, float, float, float, RGB]] = {
+    "radiator": (55.0, 1.0, 0.08, 0.6, 0.12, (225, 225, 218)),  # a panel on a wall
+    "pipe": (45.0, 3.0, 0.1, 0.0, 0.5, (150, 150, 155)),  # width: its diameter
+    "machinery": (75.0, 1.0, 0.7, 0.9, 0.0, (70, 95, 80)),
+    "dog": (38.0, 0.8, 0.3, 0.0, 0.0, (110, 75, 45)),  # its core; the fur is cooler
+    "heated_floor": (30.0, 2.5, 2.0, 0.0, 0.0, (0, 0, 0)),  # no colour: the floor's
+    "imprint": (28.0, 1.6, 0.5, 0.0, 0.0, (0, 0, 0)),  # at the mission's start
+}
+
+
+@dataclass(frozen=True)
+class WarmObject:
+    """A warm thing that is not a person. Solid ones (radiator, pipe, machinery, dog)
+    are drawn by both cameras and block the rover; a heated patch of floor and the
+    imprint where a person lay are warmth on the floor only, seen by the thermal
+    camera alone. An imprint's excess over ambient fades as exp(-(age_s + t) / fade_s)
+    with mission time t."""
+
+    kind: str
+    north_m: float
+    east_m: float
+    heading_rad: float
+    length_m: float
+    width_m: float
+    temperature_c: float
+    height_m: float = 0.0  # radiator, machinery: vertical size
+    elevation_m: float = 0.0  # radiator, pipe: bottom (axis for a pipe) above the floor
+    colour_rgb: RGB = (128, 128, 128)
+    fade_s: float = 90.0  # imprint only
+    age_s: float = 0.0  # imprint only: seconds since the person left at mission start
+
+    def __post_init__(self) -> None:
+        where = f"warm_objects ({self.kind})"
+        if self.kind not in WARM_KINDS:
+            raise WorldError(f"{where}.kind: one of {', '.join(WARM_KINDS)}")
+        if not (abs(self.north_m) <= MAX_COORD_M and abs(self.east_m) <= MAX_COORD_M):
+            raise WorldError(f"{where}: centre must lie within +-{MAX_COORD_M:g} m")
+        if not math.isfinite(self.heading_rad):
+            raise WorldError(f"{where}.heading = {self.heading_rad}: must be a finite angle")
+        for name in ("length_m", "width_m"):
+            if not 0.01 <= getattr(self, name) <= 20.0:
+                raise WorldError(f"{where}.{name} = {getattr(self, name)}: must be in [0.01, 20]")
+        if not 0.0 <= self.height_m <= 5.0 or not 0.0 <= self.elevation_m <= 5.0:
+            raise WorldError(f"{where}: height_m and elevation_m must be in [0, 5]")
+        if self.kind in ("radiator", "machinery") and self.height_m < 0.05:
+            raise WorldError(f"{where}.height_m = {self.height_m}: must be at least 0.05")
+        if not -30.0 <= self.temperature_c <= 150.0:
+            raise WorldError(f"{where}.temperature_c = {self.temperature_c}: must be in [-30, 150]")
+        if not (0.0 < self.fade_s <= 1e6 and 0.0 <= self.age_s <= 1e6):
+            raise WorldError(f"{where}: fade_s must be in (0, 1e6] and age_s in [0, 1e6]")
+        _check_rgb(self.colour_rgb, f"{where}.colour")
+
+    @property
+    def solid(self) -> bool:
+        return self.kind in ("radiator", "pipe", "machinery", "dog")
+
+    @property
+    def polygon(self) -> np.ndarray:
+        """The footprint (north, east): a rectangle length x width along the heading."""
+        pts = _box(self.north_m, self.east_m, self.length_m, self.width_m, self.heading_rad)
+        return np.asarray(pts, float)
+
+    def excess_at(self, t_s: float, ambient_c: float) -> float:
+        """Degrees above ambient at mission time t_s (an imprint fades)."""
+        excess = self.temperature_c - ambient_c
+        if self.kind == "imprint":
+            excess *= math.exp(-(self.age_s + max(t_s, 0.0)) / self.fade_s)
+        return excess
+
+
+def warm_object(kind: str, north_m: float, east_m: float, **fields: float | RGB) -> WarmObject:
+    """A warm object with its kind's defaults for every field not given."""
+    if kind not in WARM_DEFAULTS:
+        raise WorldError(f"warm_objects.kind = {kind!r}: one of {', '.join(WARM_KINDS)}")
+    temp, length, width, height, elevation, colour = WARM_DEFAULTS[kind]
+    values: dict[str, Any] = dict(
+        heading_rad=0.0,
+        length_m=length,
+        width_m=width,
+        temperature_c=temp,
+        height_m=height,
+        elevation_m=elevation,
+        colour_rgb=colour,
+    )
+    values.update(fields)
+    return WarmObject(kind, north_m, east_m, **values)
 
 
 @dataclass(frozen=True)
@@ -197,9 +328,11 @@ class Victim:
     right_arm_rad: float = 0.15
     leg_spread_rad: float = 0.05
     sleeves: Sleeves = "long"
+    skin_c: float = 34.0  # skin temperature; clothing lies between it and ambient
     visibility_pct: float = math.nan  # ground truth, computed by World
     visible_north_m: float = math.nan  # centroid of the uncovered body
     visible_east_m: float = math.nan
+    warm_visibility_pct: float = math.nan  # skin and clothing not under opaque debris
 
     def __post_init__(self) -> None:
         where = f"victims[{self.victim_id}]"
@@ -217,6 +350,8 @@ class Victim:
             raise WorldError(f"{where}.sleeves = {self.sleeves!r}: one of {', '.join(SLEEVES)}")
         if not 0.0 <= self.dust <= 1.0:
             raise WorldError(f"{where}.dust = {self.dust}: must be in [0, 1]")
+        if not 20.0 <= self.skin_c <= 42.0:
+            raise WorldError(f"{where}.skin_c = {self.skin_c}: must be in [20, 42]")
 
     @property
     def urgency(self) -> Urgency:
@@ -290,10 +425,20 @@ def _fill(mask: np.ndarray, poly_ne: np.ndarray, n0: float, e0: float, res: floa
 
 
 def compute_visibility(
-    victim: Victim, debris: tuple[Debris, ...], res_m: float = VISIBILITY_RES_M
+    victim: Victim,
+    debris: tuple[Debris, ...],
+    res_m: float = VISIBILITY_RES_M,
+    *,
+    warm: bool = False,
 ) -> tuple[float, float, float]:
-    """(visibility_pct, visible centroid north, east) from a top-down raster."""
+    """(visibility_pct, visible centroid north, east) from a top-down raster.
+
+    ``warm``: of the skin and clothing (not the shoes) under no opaque debris (debris
+    that lets heat through, ``heat_through`` > 0, does not hide it)."""
     parts = victim.parts()
+    if warm:
+        parts = [p for p in parts if p.role != "shoes"]
+        debris = tuple(d for d in debris if d.heat_through == 0.0)
     allpts = np.vstack([p.polygon_ne_m for p in parts])
     n0, e0 = allpts.min(axis=0) - 0.05
     n1, e1 = allpts.max(axis=0) + 0.05
@@ -332,6 +477,7 @@ class World:
     route_ne_m: tuple[PointNE, ...] = ()  # empty: the default lawnmower
     start_ne_m: PointNE = (0.6, 0.6)
     start_heading_rad: float = 0.0
+    warm_objects: tuple[WarmObject, ...] = ()
 
     def __post_init__(self) -> None:
         n, e = self.size_m
@@ -353,11 +499,23 @@ class World:
                 raise WorldError(
                     f"victims[{v.victim_id}] at ({v.north_m}, {v.east_m}) is off the floor"
                 )
+        for w in self.warm_objects:
+            if not (0 <= w.north_m <= n and 0 <= w.east_m <= e):
+                raise WorldError(
+                    f"warm_objects ({w.kind}) at ({w.north_m}, {w.east_m}) is off the floor"
+                )
         done = []
         for v in self.victims:
             pct, vn, ve = compute_visibility(v, self.debris)
+            warm_pct = compute_visibility(v, self.debris, warm=True)[0]
             done.append(
-                dataclasses.replace(v, visibility_pct=pct, visible_north_m=vn, visible_east_m=ve)
+                dataclasses.replace(
+                    v,
+                    visibility_pct=pct,
+                    visible_north_m=vn,
+                    visible_east_m=ve,
+                    warm_visibility_pct=warm_pct,
+                )
             )
         object.__setattr__(self, "victims", tuple(done))
 
@@ -383,7 +541,7 @@ class World:
 
 
 def preset(name: str) -> World:
-    """One of the seven scenarios of the first prototype (see PRESETS)."""
+    """One of the preset scenarios (see PRESETS)."""
     if name not in PRESETS:
         raise WorldError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
     from scenarios.worldfile import load_world_text

@@ -9,12 +9,19 @@
     route_ne_m = [[0.6, 0.6], [11.4, 0.6]]   # optional; default a lawnmower
 
     [origin]   lat_deg, lon_deg, alt_m
-    [floor]    colour = "#7d7870", texture_contrast, ambient_light
-    [[debris]] kind, colour, polygon_ne_m = [[n, e], ...]
+    [floor]    colour = "#7d7870", texture_contrast, ambient_light,
+               temperature_c (ambient, 18), temperature_variation_c (0.5)
+    [[debris]] kind, colour, polygon_ne_m = [[n, e], ...], heat_through (0..1;
+               default by kind: cloth 0.55, dust 0.7, others 0)
+    [[warm_objects]] kind (radiator | pipe | machinery | dog | heated_floor |
+               imprint), north_m, east_m, heading_deg, length_m, width_m,
+               temperature_c, height_m, elevation_m, colour, fade_s, age_s
+               (every key but kind, north_m and east_m defaults by kind)
     [[light_zones]] north_m, east_m, radius_m, light, edge_m
     [[victims]] victim_id, north_m, east_m, heading_deg, height_m, skin, top,
                 trousers, shoes, hair, posture, pattern, sleeves ("long" or
-                "short"), dust, left_arm_deg, right_arm_deg, leg_spread_deg
+                "short"), dust, left_arm_deg, right_arm_deg, leg_spread_deg,
+                skin_c (34)
 
 ``visibility_pct`` and ``urgency`` are written into [[victims]] for people to read
 and are recomputed (not trusted) on load. Unknown keys are errors.
@@ -30,14 +37,17 @@ from typing import Any
 
 from fusion.types import GlobalOrigin
 from scenarios.world import (
+    WARM_DEFAULTS,
     Debris,
     Floor,
     LightZone,
     Victim,
+    WarmObject,
     World,
     WorldError,
     hex_from_rgb,
     rgb_from_hex,
+    warm_object,
 )
 
 FORMAT = "rescue-sim-world/1"
@@ -54,6 +64,7 @@ _TOP_KEYS = {
     "debris",
     "light_zones",
     "victims",
+    "warm_objects",
 }
 _VICTIM_KEYS = {
     "victim_id",
@@ -73,8 +84,24 @@ _VICTIM_KEYS = {
     "left_arm_deg",
     "right_arm_deg",
     "leg_spread_deg",
+    "skin_c",
     "visibility_pct",
+    "warm_visibility_pct",
     "urgency",
+}
+_WARM_KEYS = {
+    "kind",
+    "north_m",
+    "east_m",
+    "heading_deg",
+    "length_m",
+    "width_m",
+    "temperature_c",
+    "height_m",
+    "elevation_m",
+    "colour",
+    "fade_s",
+    "age_s",
 }
 
 
@@ -188,9 +215,36 @@ def _victim(t: _Table) -> Victim:
         left_arm_rad=math.radians(t.num("left_arm_deg", 9.0)),
         right_arm_rad=math.radians(t.num("right_arm_deg", 9.0)),
         leg_spread_rad=math.radians(t.num("leg_spread_deg", 3.0)),
+        skin_c=t.num("skin_c", 34.0),
     )
     try:
         return Victim(**fields)
+    except WorldError as exc:
+        raise WorldError(f"{t.where}: {exc}") from None
+
+
+def _warm(t: _Table) -> WarmObject:
+    """The warm object a [[warm_objects]] table describes, its kind's defaults filling
+    in every key left out."""
+    kind = t.text("kind")
+    if kind not in WARM_DEFAULTS:
+        raise WorldError(f"{t.where}.kind = {kind!r}: one of {', '.join(WARM_DEFAULTS)}")
+    temp, length, width, height, elevation, colour = WARM_DEFAULTS[kind]
+    try:
+        return warm_object(
+            kind,
+            t.num("north_m"),
+            t.num("east_m"),
+            heading_rad=math.radians(t.num("heading_deg", 0.0)),
+            length_m=t.num("length_m", length),
+            width_m=t.num("width_m", width),
+            temperature_c=t.num("temperature_c", temp),
+            height_m=t.num("height_m", height),
+            elevation_m=t.num("elevation_m", elevation),
+            colour_rgb=t.colour("colour", hex_from_rgb(colour)),
+            fade_s=t.num("fade_s", 90.0),
+            age_s=t.num("age_s", 0.0),
+        )
     except WorldError as exc:
         raise WorldError(f"{t.where}: {exc}") from None
 
@@ -213,7 +267,15 @@ def _world(data: dict[str, Any], where: str) -> World:
         raise WorldError(f"{where}.format = {fmt!r}: this program reads {FORMAT!r}")
     o = _Table(data.get("origin", {}), f"{where}.origin", {"lat_deg", "lon_deg", "alt_m"})
     f = _Table(
-        data.get("floor", {}), f"{where}.floor", {"colour", "texture_contrast", "ambient_light"}
+        data.get("floor", {}),
+        f"{where}.floor",
+        {
+            "colour",
+            "texture_contrast",
+            "ambient_light",
+            "temperature_c",
+            "temperature_variation_c",
+        },
     )
     try:
         origin = GlobalOrigin(
@@ -225,11 +287,25 @@ def _world(data: dict[str, Any], where: str) -> World:
         f.colour("colour", "#7d7870"),
         f.num("texture_contrast", 0.18),
         f.num("ambient_light", 1.0),
+        f.num("temperature_c", 18.0),
+        f.num("temperature_variation_c", 0.5),
     )
     debris = []
     for i, d in enumerate(_list_of_tables(data, "debris")):
-        t = _Table(d, f"{where}.debris[{i}]", {"kind", "colour", "polygon_ne_m"})
-        debris.append(Debris(t.text("kind"), t.colour("colour"), t.points("polygon_ne_m", None, 3)))
+        t = _Table(d, f"{where}.debris[{i}]", {"kind", "colour", "polygon_ne_m", "heat_through"})
+        try:
+            debris.append(
+                Debris(
+                    t.text("kind"),
+                    t.colour("colour"),
+                    t.points("polygon_ne_m", None, 3),
+                    t.num("heat_through", math.nan) if "heat_through" in t.data else math.nan,
+                )
+            )
+        except WorldError as exc:
+            if str(exc).startswith(t.where):
+                raise
+            raise WorldError(f"{t.where}: {exc}") from None
     zones = []
     for i, z in enumerate(_list_of_tables(data, "light_zones")):
         t = _Table(
@@ -248,6 +324,10 @@ def _world(data: dict[str, Any], where: str) -> World:
         _victim(_Table(v, f"{where}.victims[{i}]", _VICTIM_KEYS))
         for i, v in enumerate(_list_of_tables(data, "victims"))
     ]
+    warm = [
+        _warm(_Table(w, f"{where}.warm_objects[{i}]", _WARM_KEYS))
+        for i, w in enumerate(_list_of_tables(data, "warm_objects"))
+    ]
     route = top.points("route_ne_m", [], 0)
     return World(
         size_m=_pair(top, "size_m", (12.0, 8.0)),
@@ -261,6 +341,7 @@ def _world(data: dict[str, Any], where: str) -> World:
         route_ne_m=route,
         start_ne_m=_pair(top, "start_ne_m", (0.6, 0.6)),
         start_heading_rad=math.radians(top.num("start_heading_deg", 0.0)),
+        warm_objects=tuple(warm),
     )
 
 
@@ -323,6 +404,8 @@ def world_to_toml(world: World) -> str:
         f'colour = "{hex_from_rgb(fl.colour_rgb)}"',
         f"texture_contrast = {_f(fl.texture_contrast)}",
         f"ambient_light = {_f(fl.ambient_light)}",
+        f"temperature_c = {_f(fl.temperature_c)}",
+        f"temperature_variation_c = {_f(fl.temperature_variation_c)}",
     ]
     for z in world.light_zones:
         lines += [
@@ -355,7 +438,9 @@ def world_to_toml(world: World) -> str:
             f"left_arm_deg = {_deg(v.left_arm_rad)}",
             f"right_arm_deg = {_deg(v.right_arm_rad)}",
             f"leg_spread_deg = {_deg(v.leg_spread_rad)}",
+            f"skin_c = {_f(v.skin_c)}",
             f"visibility_pct = {_f(v.visibility_pct)}  # computed, not read",
+            f"warm_visibility_pct = {_f(v.warm_visibility_pct)}  # computed, not read",
             f'urgency = "{v.urgency.name}"  # computed, not read',
         ]
     for d in world.debris:
@@ -365,6 +450,25 @@ def world_to_toml(world: World) -> str:
             f'kind = "{d.kind}"',
             f'colour = "{hex_from_rgb(d.colour_rgb)}"',
             f"polygon_ne_m = {_pts(d.polygon_ne_m)}",
+        ]
+        if d.heat_through > 0 or d.kind in ("cloth", "dust"):
+            lines.append(f"heat_through = {_f(d.heat_through)}")
+    for w in world.warm_objects:
+        lines += [
+            "",
+            "[[warm_objects]]",
+            f'kind = "{w.kind}"',
+            f"north_m = {_f(w.north_m)}",
+            f"east_m = {_f(w.east_m)}",
+            f"heading_deg = {_deg(w.heading_rad)}",
+            f"length_m = {_f(w.length_m)}",
+            f"width_m = {_f(w.width_m)}",
+            f"temperature_c = {_f(w.temperature_c)}",
+            f"height_m = {_f(w.height_m)}",
+            f"elevation_m = {_f(w.elevation_m)}",
+            f'colour = "{hex_from_rgb(w.colour_rgb)}"',
+            f"fade_s = {_f(w.fade_s)}",
+            f"age_s = {_f(w.age_s)}",
         ]
     return "\n".join(lines) + "\n"
 

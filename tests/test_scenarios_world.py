@@ -122,8 +122,9 @@ def test_skin_debris_preset_has_skin_coloured_debris_and_no_victim() -> None:
     assert sum(d.kind == "lookalike_skin" for d in world.debris) >= 3
 
 
-def test_presets_list_is_the_seven_scenarios() -> None:
-    assert len(PRESETS) == 7
+def test_presets_list_is_the_seven_scenarios_and_four_thermal_ones() -> None:
+    assert len(PRESETS) == 11
+    assert sum(name.startswith("thermal_") for name in PRESETS) == 4
     for name in PRESETS:
         preset(name)
     with pytest.raises(WorldError, match="unknown preset 'nope'"):
