@@ -110,16 +110,16 @@ class ThermalDetector:
         if n <= 1:
             self.memory.forget(t_mono_s)
             return result
-        peaks = _label_max(t, labels, n, -np.inf)
         big = stats[:, cv2.CC_STAT_AREA] >= p.min_blob_px
-        hot = peaks > p.max_skin_c
-        seeds = big & ~hot & (peaks >= p.min_body_c) & (peaks >= amb + p.min_peak_contrast_k)
-        seeds[0] = False
-        for i in np.flatnonzero(big & hot)[:8]:
-            if i:
-                result.rejected.append(
-                    Rejected(_box(stats[i]), float(peaks[i]), "hotter than skin")
-                )
+        # clusters holding a pixel hotter than skin, and clusters holding skin
+        hot = np.bincount(labels[t > p.max_skin_c], minlength=n) > 0
+        skin_c = max(p.min_body_c, amb + p.min_peak_contrast_k)
+        seeds = big & ~hot & (np.bincount(labels[t >= skin_c], minlength=n) > 0)
+        seeds[0] = hot[0] = False
+        for i in np.flatnonzero(big & hot)[:8].tolist():
+            x, y, w, h = _box(stats[i])
+            peak = float(t[y : y + h, x : x + w][labels[y : y + h, x : x + w] == i].max())
+            result.rejected.append(Rejected((x, y, w, h), peak, "hotter than skin"))
         if not seeds.any():
             self.memory.forget(t_mono_s)
             return result
@@ -151,7 +151,9 @@ class ThermalDetector:
         away = cv2.distanceTransform(1 - seed_mask, cv2.DIST_L2, 3)
         reach = (away <= gap).astype(np.uint8)
         _, zones = cv2.connectedComponents(reach, connectivity=8)
-        zone_of = _label_max(zones, labels, len(seeds), 0).astype(np.int64)
+        both = (zones > 0) & (labels > 0)
+        zone_of = np.zeros(len(seeds), np.int64)
+        zone_of[labels[both]] = zones[both]  # a cluster lies in one zone (any of its pixels)
         zone_of[~joinable] = 0
         zone_of[0] = 0
         order = np.argsort(zone_of, kind="stable")
@@ -175,7 +177,9 @@ class ThermalDetector:
         x1 = int((stats[members, cv2.CC_STAT_LEFT] + stats[members, cv2.CC_STAT_WIDTH]).max())
         y1 = int((stats[members, cv2.CC_STAT_TOP] + stats[members, cv2.CC_STAT_HEIGHT]).max())
         box = (x0, y0, x1 - x0, y1 - y0)
-        roi = np.isin(labels[y0:y1, x0:x1], members)
+        lut = np.zeros(len(stats), bool)
+        lut[members] = True
+        roi = lut[labels[y0:y1, x0:x1]]
         vs, us = np.nonzero(roi)
         vals = t[y0:y1, x0:x1][roi]
         area_px = float(vals.size)
@@ -188,12 +192,10 @@ class ThermalDetector:
         area_m2: float | None = None
         expected: float | None = None
         if geometry is not None:
-            floor = geometry.floor_ne_m(np.column_stack([us + x0, vs + y0]).astype(np.float64))
-            on_floor = np.isfinite(floor).all(axis=1)
-            if on_floor.mean() < p.min_floor_share or geometry.metres_per_px(u, v) is None:
+            area_m2, on_floor = _area_m2(geometry, u, vs + y0)
+            if on_floor < p.min_floor_share or geometry.metres_per_px(u, v) is None:
                 return reject("above the floor or out of range")
-            area_m2 = _area_m2(geometry, us[on_floor] + x0, vs[on_floor] + y0)
-            area_m2 /= max(on_floor.mean(), 1e-9)
+            area_m2 /= on_floor
             if area_m2 < p.min_area_m2:
                 return reject(f"{area_m2:.4f} m² is smaller than a hand")
             if area_m2 > p.max_area_m2:
@@ -231,30 +233,19 @@ def _box(stat: np.ndarray) -> tuple[int, int, int, int]:
     return (int(stat[0]), int(stat[1]), int(stat[2]), int(stat[3]))
 
 
-def _area_m2(geometry: FrameGeometry, us: np.ndarray, vs: np.ndarray) -> float:
-    """Floor area of many pixels: each pixel's metres per pixel, squared, summed
-    (FrameGeometry caches per 8x8 cell, so this asks once per cell)."""
-    cells, counts = np.unique((vs // 8) * 100_000 + us // 8, return_counts=True)
-    total = 0.0
-    for cell, count in zip(cells.tolist(), counts.tolist(), strict=True):
-        mpp = geometry.metres_per_px((cell % 100_000) * 8 + 4.0, (cell // 100_000) * 8 + 4.0)
+def _area_m2(geometry: FrameGeometry, u: float, vs: np.ndarray) -> tuple[float, float]:
+    """Floor area of a find's pixels (rows ``vs``) and the share of them on the floor:
+    each 8-row band's metres per pixel at the find's centre column, squared, times its
+    pixels (the scale changes with the row; FrameGeometry caches per 8x8 cell)."""
+    band0 = int(vs.min()) // 8
+    counts = np.bincount(vs // 8 - band0)
+    total = on = 0.0
+    for i in np.flatnonzero(counts).tolist():
+        mpp = geometry.metres_per_px(u, (band0 + i) * 8 + 4.0)
         if mpp is not None:
-            total += count * mpp * mpp
-    return total
-
-
-def _label_max(values: np.ndarray, labels: np.ndarray, n: int, empty: float) -> np.ndarray:
-    """Per label 1..n-1 the largest value of its pixels (index 0, the background: empty)."""
-    out = np.full(n, empty, dtype=np.float64)
-    idx = np.flatnonzero(labels)
-    if idx.size:
-        lab = labels.ravel()[idx]
-        order = np.argsort(lab, kind="stable")
-        lab = lab[order]
-        vals = values.ravel()[idx][order]
-        starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
-        out[lab[starts]] = np.maximum.reduceat(vals, starts)
-    return out
+            total += float(counts[i]) * mpp * mpp
+            on += float(counts[i])
+    return total, on / float(vs.size)
 
 
 def _floor_key(geometry: FrameGeometry, u: float, v: float) -> tuple[float, float] | None:

@@ -30,9 +30,8 @@ class ThermalTrack:
         """The excess's trend over the samples, None while they span less than min_span_s."""
         if len(self.samples) < 3 or self.samples[-1][0] - self.samples[0][0] < min_span_s:
             return None
-        t = np.fromiter((s[0] for s in self.samples), float)
-        x = np.fromiter((s[1] for s in self.samples), float)
-        t -= t.mean()
+        tx = np.array(self.samples)
+        t, x = tx[:, 0] - tx[:, 0].mean(), tx[:, 1]
         return float((t * (x - x.mean())).sum() / (t * t).sum())
 
 
