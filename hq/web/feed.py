@@ -2,20 +2,26 @@
 
 ``ConsoleDatabase`` (thread ``hq-web-db``) owns the console's own registry
 connection and notes. It runs every database job the pages ask for (actions,
-notes, exports) one after the other, and every 0.1 s compares SQLite's
+notes, exports, the state for /api/state) one after the other. While at least one
+page watches (an open event stream) it also compares, every 0.1 s, SQLite's
 ``data_version`` (which moves when the HQ's main thread commits a report, a
 status or an acknowledgement), LiveRobots' version (positions) and the set of
-robots whose link is lost; on a change it builds the whole page state
-(hq.web.state.snapshot) at most every 0.2 s (every 1 s when only robots moved)
-and hands it to ``publish``. ``Hub`` lives in the web server's event loop and
-holds the latest state for the event streams.
+robots whose link is lost; on a change it updates the page state at most every
+0.2 s (every 1 s when only robots moved) and hands it to ``publish``. With no
+page open nothing is built; a request for the state updates it then.
+
+An update is incremental (``Changes``): each source row's markers (HQ victim,
+report number and time, merge target, when it was stored) are compared with the
+last ones seen, and only the HQ victims whose sources, actions, notes or
+pictures changed are rebuilt (read, fused, made JSON; hq.web.state.Page keeps the
+rest). ``Hub`` lives in the web server's event loop and holds the latest state
+for the event streams.
 """
 
 from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import json
 import logging
 import queue
 import sqlite3
@@ -26,11 +32,14 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any, TypeVar
 
+from hq.merge import Origins
+from hq.records import Action, BadRecord, Source, report_from_payload
 from hq.registry import Registry
 from hq.registry_file import RegistryError
-from hq.view import HqVictim, hq_victims
+from hq.registry_rows import cell_float, cell_int
+from hq.view import HqVictim, build, hq_victims
 from hq.web.notes import Notes
-from hq.web.state import LiveRobots, robots_lost, snapshot
+from hq.web.state import LiveRobots, Note, Page, actions_by_source, robots_lost, victim_actions
 
 log = logging.getLogger(__name__)
 
@@ -40,13 +49,25 @@ _MOVED_PUBLISH_S = 1.0  # and robots' movements alone at most once a second
 T = TypeVar("T")
 Job = Callable[[Registry, Notes], T]
 _Queued = tuple[Callable[[Registry, Notes], Any], "concurrent.futures.Future[Any]"]
+SourceKey = tuple[int, int]  # (robot sysid, robot's victim ID)
+_Marks = tuple[object, ...]  # a source row's hq_id, report_seq and time, merge target, stored
+_FULL_READ = 200  # more changed sources than this: read them all in one query
+_SOURCE_COLUMNS = (
+    "robot_sysid, victim_id, hq_id, payload, report_seq, merged_into_id, updated_unix_s"
+)
 
 
 def picture_versions(registry: Registry, victims: list[HqVictim]) -> dict[int, str]:
     """The version of each HQ victim's evidence picture (the newest received among
     its robots' pictures): ``robot-victim-picture_id``, so a better picture is a new
     address and the browser fetches it."""
-    stored = registry.picture_versions()
+    return picture_versions_of(registry.picture_versions(), victims)
+
+
+def picture_versions_of(
+    stored: dict[SourceKey, tuple[int, float]], victims: list[HqVictim]
+) -> dict[int, str]:
+    """``picture_versions`` from the stored pictures' (picture_id, received time)."""
     out: dict[int, str] = {}
     for v in victims:
         held = [(stored[s][1], s, stored[s][0]) for s in v.sources if s in stored]
@@ -93,6 +114,10 @@ class Hub:
         self._changed.set()
         self._changed = asyncio.Event()
 
+    def forget(self) -> None:
+        """Drop the state: it is not kept up to date while no page watches."""
+        self.data = ""
+
     def close(self) -> None:
         self.closing = True
         self._changed.set()
@@ -104,8 +129,127 @@ class Hub:
             await asyncio.wait_for(self._changed.wait(), timeout_s)
 
 
+class Changes:
+    """What the page shows, kept between updates, and which HQ victims changed since.
+
+    The console thread's own read connection; ``update`` brings a Page up to date
+    and says whether anything it shows changed.
+    """
+
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self._db = db
+        self._marks: dict[SourceKey, _Marks] = {}
+        self._sources: dict[SourceKey, Source] = {}
+        self._actions: dict[SourceKey, list[Action]] = {}
+        self._notes: dict[int, list[Note]] = {}
+        self._pictures: dict[SourceKey, tuple[int, float]] = {}
+        self._origins: Origins | None = None
+        self.victims_built = 0  # HQ victims rebuilt in all (what the incremental saves)
+
+    def update(self, registry: Registry, notes: Notes, page: Page) -> bool:
+        dirty: set[int] = set()  # HQ victims to rebuild
+        origins = registry.origins()
+        if origins != self._origins:
+            self._origins = origins
+            dirty |= {source.hq_id for source in self._sources.values()}
+        dirty |= self._sources_changed()
+        actions = actions_by_source(registry.actions())
+        for key in set(actions) | set(self._actions):
+            if actions.get(key) != self._actions.get(key):
+                dirty |= self._hq_ids(key)
+        self._actions = actions
+        by_victim: dict[int, list[Note]] = {}
+        for n in notes.all():
+            by_victim.setdefault(n.hq_id, []).append(n)
+        for hq_id in set(by_victim) | set(self._notes):
+            if by_victim.get(hq_id) != self._notes.get(hq_id):
+                dirty.add(hq_id)
+        self._notes = by_victim
+        pictures = registry.picture_versions()
+        for key in set(pictures) | set(self._pictures):
+            if pictures.get(key) != self._pictures.get(key):
+                dirty |= self._hq_ids(key)
+        self._pictures = pictures
+        if dirty:
+            self._rebuild(dirty, page, registry)
+        return bool(dirty)
+
+    def _hq_ids(self, key: SourceKey) -> set[int]:
+        source = self._sources.get(key)
+        return set() if source is None else {source.hq_id}
+
+    def _sources_changed(self) -> set[int]:
+        """Read the sources whose markers moved; the HQ victims they left and joined."""
+        marks: dict[SourceKey, _Marks] = {}
+        for robot, victim, *rest in self._db.execute(
+            "SELECT robot_sysid, victim_id, hq_id, report_seq, report_time_usec,"
+            " merged_into_id, updated_unix_s FROM sources"
+        ):
+            marks[(robot, victim)] = tuple(rest)
+        changed = {k for k, m in marks.items() if self._marks.get(k) != m}
+        gone = set(self._marks) - set(marks)
+        self._marks = marks
+        dirty = set()
+        for key in changed | gone:
+            dirty |= self._hq_ids(key)
+            self._sources.pop(key, None)
+        for source in self._read(changed):
+            self._sources[(source.report.robot_sysid, source.report.victim_id)] = source
+            dirty.add(source.hq_id)
+        return dirty
+
+    def _read(self, keys: set[SourceKey]) -> list[Source]:
+        if not keys:
+            return []
+        if len(keys) > _FULL_READ:
+            rows = self._db.execute(f"SELECT {_SOURCE_COLUMNS} FROM sources").fetchall()
+        else:
+            rows = []
+            for robot, victim in keys:
+                rows += self._db.execute(
+                    f"SELECT {_SOURCE_COLUMNS} FROM sources WHERE robot_sysid=? AND victim_id=?",
+                    (robot, victim),
+                ).fetchall()
+        out = []
+        for robot, victim, h, payload, seq, merged, updated in rows:
+            if (robot, victim) not in keys:
+                continue
+            try:
+                out.append(
+                    Source(
+                        cell_int(h),
+                        report_from_payload(payload),
+                        cell_int(seq),
+                        cell_int(merged),
+                        cell_float(updated),
+                    )
+                )
+            except (BadRecord, TypeError, ValueError) as exc:  # the HQ's registry says it once
+                log.debug("console: source robot %s victim %s skipped: %s", robot, victim, exc)
+        return out
+
+    def _rebuild(self, dirty: set[int], page: Page, registry: Registry) -> None:
+        members = [s for s in self._sources.values() if s.hq_id in dirty]
+        keys = {(s.report.robot_sysid, s.report.victim_id) for s in members}
+        actions = [a for k in keys for a in self._actions.get(k, [])]
+        assert self._origins is not None  # update() set them first
+        victims = build(members, actions, self._origins)
+        pictures = picture_versions_of(self._pictures, victims)
+        for v in victims:
+            page.set_victim(
+                v,
+                victim_actions(v, self._actions),
+                self._notes.get(v.hq_id, []),
+                pictures.get(v.hq_id),
+            )
+        self.victims_built += len(victims)
+        for hq_id in dirty - {v.hq_id for v in victims}:
+            page.drop_victim(hq_id)  # no one left in it (merged away)
+
+
 class ConsoleDatabase(threading.Thread):
-    """The console's database thread: jobs in order, and the watch for news."""
+    """The console's database thread: jobs in order, and the watch for news while
+    a page watches."""
 
     def __init__(
         self,
@@ -123,7 +267,11 @@ class ConsoleDatabase(threading.Thread):
         self._halt = threading.Event()
         self.opened = threading.Event()
         self.open_error: str | None = None
-        self._dirty = True
+        self.watchers = 0  # open event streams; set by the web server's event loop
+        self._page = Page()
+        self._changes: Changes | None = None
+        self._read: sqlite3.Connection | None = None
+        self._built_for: tuple[int, int, frozenset[int]] | None = None
 
     def submit(self, job: Job[T]) -> concurrent.futures.Future[T]:
         future: concurrent.futures.Future[T] = concurrent.futures.Future()
@@ -137,22 +285,35 @@ class ConsoleDatabase(threading.Thread):
         try:
             registry = Registry(self.db_path)
             notes = Notes(self.db_path)
+            self._read = sqlite3.connect(
+                f"file:{self.db_path}?mode=ro", uri=True, isolation_level=None, timeout=1.5
+            )
         except (RegistryError, sqlite3.Error) as exc:
             self.open_error = str(exc)
             self.opened.set()
             return
+        self._changes = Changes(self._read)
         self.opened.set()
         try:
             self._loop(registry, notes)
         finally:
+            self._read.close()
             notes.close()
             registry.close()
 
+    def _data_version(self) -> int:
+        """Moves when any other connection commits: the HQ's, and this thread's own
+        registry and notes connections (the pages' writes)."""
+        assert self._read is not None
+        return int(self._read.execute("PRAGMA data_version").fetchone()[0])
+
     def _loop(self, registry: Registry, notes: Notes) -> None:
         db_version = live_version = -1
+        watched = False
         lost: frozenset[int] = frozenset()
         robots = registry.robots()
         next_tick = last_publish = 0.0
+        dirty = True
         while not self._halt.is_set():
             try:
                 job, future = self._jobs.get(timeout=max(0.0, next_tick - time.monotonic()))
@@ -164,24 +325,26 @@ class ConsoleDatabase(threading.Thread):
                         future.set_result(job(registry, notes))
                     except BaseException as exc:  # handed to the request that asked
                         future.set_exception(exc)
-                self._dirty = True
                 continue
             now = time.monotonic()
             next_tick = now + _TICK_S
+            if self.watchers <= 0:  # no page open: nothing to build
+                watched = False
+                continue
             try:
-                version = registry.data_version()
+                if not watched:  # a first page: it gets the state now
+                    watched, dirty, last_publish = True, True, 0.0
+                version = self._data_version()
                 if version != db_version:
-                    db_version, self._dirty = version, True
+                    db_version, dirty = version, True
                     robots = registry.robots()
                 moved = self.live.version != live_version
                 now_lost = robots_lost(robots, self.live, time.time(), self.link_timeout_s)
                 if now_lost != lost:
-                    lost, self._dirty = now_lost, True
+                    lost, dirty = now_lost, True
                 since = now - last_publish
-                if (self._dirty and since >= _MIN_PUBLISH_S) or (
-                    moved and since >= _MOVED_PUBLISH_S
-                ):
-                    self._dirty = False
+                if (dirty and since >= _MIN_PUBLISH_S) or (moved and since >= _MOVED_PUBLISH_S):
+                    dirty = False
                     live_version = self.live.version
                     last_publish = now
                     self._publish(self.state_json(registry, notes))
@@ -192,15 +355,20 @@ class ConsoleDatabase(threading.Thread):
                 next_tick = time.monotonic() + 1.0
 
     def state_json(self, registry: Registry, notes: Notes) -> str:
-        victims = hq_victims(registry)
-        state = snapshot(
-            victims,
-            registry.robots(),
-            registry.actions(),
-            notes.all(),
-            self.live.tracks(),
-            picture_versions(registry, victims),
-            time.time(),
-            self.link_timeout_s,
+        """The page's whole state, brought up to date from what changed since the last
+        build (no build when nothing did). The database thread only."""
+        assert self._changes is not None
+        now = time.time()
+        robots = registry.robots()
+        key = (
+            self._data_version(),
+            self.live.version,
+            robots_lost(robots, self.live, now, self.link_timeout_s),
         )
-        return json.dumps(state, separators=(",", ":"))
+        if key != self._built_for:
+            self._changes.update(registry, notes, self._page)
+            tracks = self.live.tracks(self._page.paths_held())
+            self._page.set_robots(robots, tracks, now, self.link_timeout_s)
+            self._page.builds += 1
+            self._built_for = key
+        return self._page.json(now, self.link_timeout_s)

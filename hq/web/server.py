@@ -279,8 +279,16 @@ class Console:
                 if hub.version == before and not hub.closing:
                     yield ": keepalive\n\n"
 
+        self._db.watchers = limits.streams
+
+        def closed() -> None:
+            limits.close_stream()
+            self._db.watchers = limits.streams
+            if limits.streams == 0:
+                hub.forget()  # no one watches: the next page waits for a fresh state
+
         return _CountedStream(
-            limits.close_stream,
+            closed,
             stream(),
             media_type="text/event-stream",
             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},

@@ -2,8 +2,10 @@
 
 ``LiveRobots`` is filled by the HQ's main thread (every message heard from a
 system, LOCAL_POSITION_NED from a robot's autopilot) and read by the console's
-thread; it is the only state the two share, behind one lock. ``snapshot`` builds
-the page's whole state from the registry's rows and LiveRobots; it is pure.
+thread; it is the only state the two share, behind one lock. ``Page`` holds the
+page's whole state as JSON entries per victim and robot and replaces only those
+that changed (hq.web.feed says which); ``snapshot`` builds it all at once. Both
+are pure.
 
 The list order is the operator's: open victims before resolved ones (RESCUED,
 FALSE_ALARM), then the most urgent first, then the one waiting longest (earliest
@@ -14,9 +16,10 @@ of the fused position's covariance.
 
 from __future__ import annotations
 
+import json
 import math
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -36,6 +39,7 @@ class _Track:
     east_m: float | None = None
     position_unix_s: float | None = None
     path: list[tuple[float, float]] = field(default_factory=list)
+    path_version: int = 0  # bumped when the path changes
 
 
 @dataclass(frozen=True)
@@ -45,7 +49,8 @@ class RobotTrack:
     north_m: float | None
     east_m: float | None
     position_unix_s: float | None
-    path: tuple[tuple[float, float], ...]
+    path: tuple[tuple[float, float], ...] | None  # None: unchanged since the version asked for
+    path_version: int = 0
 
 
 class LiveRobots:
@@ -77,6 +82,7 @@ class LiveRobots:
             last = t.path[-1] if t.path else None
             if last is None or math.hypot(north_m - last[0], east_m - last[1]) >= self._step_m:
                 t.path.append((north_m, east_m))
+                t.path_version += 1
                 if len(t.path) > self._max_points:
                     half = len(t.path) // 2
                     t.path[:half] = t.path[:half:2]
@@ -91,11 +97,20 @@ class LiveRobots:
         with self._lock:
             return frozenset(s for s, t in self._tracks.items() if t.north_m is not None)
 
-    def tracks(self) -> dict[int, RobotTrack]:
+    def tracks(self, paths_held: Mapping[int, int] | None = None) -> dict[int, RobotTrack]:
+        """Every robot's track; a path is copied only when its version is not the one
+        ``paths_held`` says the caller has (otherwise ``path`` is None)."""
+        held = paths_held or {}
         with self._lock:
             return {
                 s: RobotTrack(
-                    s, t.last_heard_unix_s, t.north_m, t.east_m, t.position_unix_s, tuple(t.path)
+                    s,
+                    t.last_heard_unix_s,
+                    t.north_m,
+                    t.east_m,
+                    t.position_unix_s,
+                    None if held.get(s) == t.path_version else tuple(t.path),
+                    t.path_version,
                 )
                 for s, t in self._tracks.items()
             }
@@ -186,6 +201,7 @@ def _victim(
 def _robot(
     sysid: int, robot: Robot | None, track: RobotTrack | None, now: float, timeout_s: float
 ) -> dict[str, Any]:
+    """A robot's entry without its path (Page adds the path, kept as JSON)."""
     heard = max(
         robot.last_heard_unix_s if robot else 0.0, track.last_heard_unix_s if track else 0.0
     )
@@ -200,7 +216,6 @@ def _robot(
             if track is None or track.north_m is None
             else {"north_m": round(track.north_m, 2), "east_m": round(track.east_m or 0.0, 2)}
         ),
-        "path": [[round(n, 2), round(e, 2)] for n, e in track.path] if track else [],
     }
 
 
@@ -216,6 +231,83 @@ def robots_lost(
     return frozenset(s for s, heard in known.items() if now - heard > timeout_s)
 
 
+def _dumps(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"))
+
+
+class Page:
+    """The page's whole state, kept between builds as one JSON entry per victim and
+    per robot: a build replaces only the entries whose victim changed (the caller
+    says which) and a robot's path only when it grew, then joins them. Pure."""
+
+    def __init__(self) -> None:
+        self._victims: dict[int, tuple[tuple[bool, int, float, int], str]] = {}
+        self._order: list[str] | None = None  # the victims' entries in the operator's order
+        self._paths: dict[int, tuple[int, str]] = {}  # sysid -> (path version, path JSON)
+        self._robots: list[str] = []
+        self.builds = 0  # how many times it was brought up to date (the builder counts)
+
+    def victim_ids(self) -> set[int]:
+        return set(self._victims)
+
+    def set_victim(
+        self, v: HqVictim, actions: list[Action], notes: list[Note], picture: str | None
+    ) -> None:
+        """(Re)place one victim's entry; ``actions`` in action_seq order."""
+        self._victims[v.hq_id] = (_sort_key(v), _dumps(_victim(v, actions, notes, picture)))
+        self._order = None
+
+    def drop_victim(self, hq_id: int) -> None:
+        if self._victims.pop(hq_id, None) is not None:
+            self._order = None
+
+    def paths_held(self) -> dict[int, int]:
+        """sysid -> the version of the path held (for LiveRobots.tracks)."""
+        return {s: version for s, (version, _) in self._paths.items()}
+
+    def set_robots(
+        self, robots: list[Robot], tracks: dict[int, RobotTrack], now: float, timeout_s: float
+    ) -> None:
+        """Every robot that reported, and every one with a position."""
+        registered = {r.sysid: r for r in robots}
+        shown = sorted(set(registered) | {s for s, t in tracks.items() if t.north_m is not None})
+        entries = []
+        for sysid in shown:
+            track = tracks.get(sysid)
+            if track is not None and track.path is not None:
+                path = _dumps([[round(n, 2), round(e, 2)] for n, e in track.path])
+                self._paths[sysid] = (track.path_version, path)
+            path_json = self._paths.get(sysid, (0, "[]"))[1] if track is not None else "[]"
+            head = _dumps(_robot(sysid, registered.get(sysid), track, now, timeout_s))
+            entries.append(f'{head[:-1]},"path":{path_json}}}')  # the path spliced in
+        self._robots = entries
+
+    def json(self, now_unix_s: float, link_timeout_s: float) -> str:
+        """The state as the page gets it (``builds``: how many builds it is the result of)."""
+        if self._order is None:
+            ranked = sorted(self._victims.values(), key=lambda entry: entry[0])
+            self._order = [entry for _, entry in ranked]
+        head = _dumps(
+            {"now_unix_s": now_unix_s, "link_timeout_s": link_timeout_s, "builds": self.builds}
+        )
+        victims, robots = ",".join(self._order), ",".join(self._robots)
+        return f'{head[:-1]},"victims":[{victims}],"robots":[{robots}]}}'
+
+
+def actions_by_source(actions: Iterable[Action]) -> dict[tuple[int, int], list[Action]]:
+    """(robot, robot's victim) -> its actions, in action_seq order."""
+    out: dict[tuple[int, int], list[Action]] = {}
+    for a in sorted(actions, key=lambda a: a.action_seq):
+        out.setdefault((a.robot_sysid, a.victim_id), []).append(a)
+    return out
+
+
+def victim_actions(v: HqVictim, by_source: Mapping[tuple[int, int], list[Action]]) -> list[Action]:
+    """The actions on any of an HQ victim's sources, in action_seq order."""
+    acts = [a for key in v.sources for a in by_source.get(key, [])]
+    return sorted(acts, key=lambda a: a.action_seq)
+
+
 def snapshot(
     victims: list[HqVictim],
     robots: list[Robot],
@@ -226,31 +318,15 @@ def snapshot(
     now_unix_s: float,
     link_timeout_s: float,
 ) -> dict[str, Any]:
-    """The page's whole state. Robots: every one that reported, and every one with a position."""
-    by_source: dict[tuple[int, int], list[Action]] = {}
-    for a in actions:
-        by_source.setdefault((a.robot_sysid, a.victim_id), []).append(a)
+    """The page's whole state built at once (what a Page holds after it was given all)."""
+    by_source = actions_by_source(actions)
     by_victim: dict[int, list[Note]] = {}
     for n in notes:
         by_victim.setdefault(n.hq_id, []).append(n)
-    registered = {r.sysid: r for r in robots}
-    shown = sorted(set(registered) | {s for s, t in tracks.items() if t.north_m is not None})
-    return {
-        "now_unix_s": now_unix_s,
-        "link_timeout_s": link_timeout_s,
-        "victims": [
-            _victim(
-                v,
-                sorted(
-                    (a for key in v.sources for a in by_source.get(key, [])),
-                    key=lambda a: a.action_seq,
-                ),
-                by_victim.get(v.hq_id, []),
-                pictures.get(v.hq_id),
-            )
-            for v in sorted(victims, key=_sort_key)
-        ],
-        "robots": [
-            _robot(s, registered.get(s), tracks.get(s), now_unix_s, link_timeout_s) for s in shown
-        ],
-    }
+    page = Page()
+    for v in victims:
+        page.set_victim(
+            v, victim_actions(v, by_source), by_victim.get(v.hq_id, []), pictures.get(v.hq_id)
+        )
+    page.set_robots(robots, tracks, now_unix_s, link_timeout_s)
+    return dict(json.loads(page.json(now_unix_s, link_timeout_s)))
