@@ -323,12 +323,14 @@ class HqApp:
 
     def _table_header(self, stored: int) -> table.Header:
         """The live table's title lines (hq.output draws the table)."""
+        sbs = self.output.sbs
+        warnings = (self.reports.storage_warning(), None if sbs is None else sbs.failure)
         return table.Header(
             self.options.sysid,
             [ep.name for ep in self.endpoints],
             stored,
             self._signing is not None,
-            self.reports.storage_warning(),
+            "; ".join(w for w in warnings if w) or None,
         )
 
 

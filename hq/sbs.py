@@ -27,20 +27,30 @@ drops it at its expiry. A victim without latitude/longitude (no EKF origin for i
 robot and no ``--origin``) cannot be placed and is not sent; ``rescue-hq list``
 shows it.
 
-The server runs one thread: it accepts clients, writes to them without blocking
-(a client that does not read is dropped, it reconnects), and refreshes. The HQ's
-main thread calls ``publish`` with the current victims.
+The server runs one thread (``hq-sbs``) over a selector (epoll: a client's file
+descriptor may be above 1023, as with many console connections open): it accepts
+clients and writes to each through its own output buffer, as much as the socket
+takes, the rest when the socket is writable again, so a snapshot of hundreds of
+tracks reaches a client on a slow or small-window link. A client whose buffer
+grows beyond ``max_client_buffer_bytes`` (several whole refreshes: it does not
+read) is dropped with a log line; it reconnects and gets every track again. The
+HQ's main thread calls ``publish`` with the current victims; it never blocks:
+changes are kept per track and the thread is woken by one byte on a non-blocking
+socket pair, only when no wake-up is pending. Should the thread fail, it logs the
+error (the first with its traceback), closes its clients, and serves again a second
+later; ``failure`` says so for the HQ's status line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import select
+import selectors
 import socket
 import threading
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
 from fusion.types import TrackState, Urgency
@@ -57,6 +67,10 @@ _FEET_PER_M = 1.0 / 0.3048
 _LIVE_STATES = (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
 _RETIRED_LABEL = {TrackState.RESCUED: "RESC", TrackState.FALSE_ALARM: "FALSE"}
 _URGENCY_LABEL = {Urgency.CRITICAL: "CRIT", Urgency.MEDIUM: "MED", Urgency.LIGHT: "LIGHT"}
+MAX_CLIENT_BUFFER_BYTES = 16 * 1024 * 1024  # ~80 refreshes of 1000 tracks: a client not reading
+_SEND_CHUNK_BYTES = 256 * 1024  # at most this much per send() call
+_RESTART_DELAY_S = 1.0  # after a failure of the thread, serve again this much later
+_ACCEPT_PAUSE_S = 1.0  # accept() failing (no file descriptors left): try again this much later
 
 
 @dataclass(frozen=True)
@@ -117,12 +131,28 @@ def lines(track: SbsTrack, now_unix_s: float) -> bytes:
     return f"{position}\r\n{ident}\r\n".encode("ascii")
 
 
+@dataclass
+class _Client:
+    sock: socket.socket
+    peer: str
+    out: bytearray = field(default_factory=bytearray)  # accepted, not yet taken by the socket
+    writing: bool = False  # registered for EVENT_WRITE too
+
+
 class SbsServer:
     """An SBS-1 feed on a TCP port. ``OSError`` from the constructor when the port
     cannot be bound (in use, no such address)."""
 
-    def __init__(self, host: str, port: int, refresh_s: float = REFRESH_S) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        refresh_s: float = REFRESH_S,
+        *,
+        max_client_buffer_bytes: int = MAX_CLIENT_BUFFER_BYTES,
+    ) -> None:
         self.refresh_s = refresh_s
+        self.max_client_buffer_bytes = max_client_buffer_bytes
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         try:
             self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -133,10 +163,16 @@ class SbsServer:
             raise
         self._listener.setblocking(False)
         self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
         self._lock = threading.Lock()
         self._live: dict[int, SbsTrack] = {}
-        self._pending: list[SbsTrack] = []  # changed or retired: sent at the next wake
-        self._clients: list[socket.socket] = []
+        self._pending: dict[int, SbsTrack] = {}  # changed or retired, by address: sent at once
+        self._wake_pending = False  # a wake-up byte is on its way: publish sends no other
+        self._clients: dict[int, _Client] = {}  # by file descriptor; only the thread changes it
+        self._selector: selectors.BaseSelector | None = None
+        self._failures = 0
+        self._last_failure = ""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hq-sbs", daemon=True)
         self._thread.start()
@@ -151,17 +187,31 @@ class SbsServer:
         with self._lock:
             return len(self._clients)
 
+    @property
+    def failure(self) -> str | None:
+        """What went wrong with the feed's thread (it was restarted), None when nothing."""
+        with self._lock:
+            if not self._failures:
+                return None
+            times = "once" if self._failures == 1 else f"{self._failures} times"
+            return f"SBS-1 feed failed {times}, restarted (last: {self._last_failure})"
+
     def publish(self, victims: Iterable[HqVictim]) -> None:
-        """The current HQ victims: new or changed tracks go out at once."""
+        """The current HQ victims: new or changed tracks go out at once. Never blocks."""
         live, retired = tracks(victims)
         with self._lock:
-            now_live = {t.icao: t for t in live}
             changed = [t for t in live if self._live.get(t.icao) != t]
             gone = [t for t in retired if t.icao in self._live]
-            self._live = now_live
-            self._pending += changed + gone
-            wake = bool(changed or gone)
+            self._live = {t.icao: t for t in live}
+            for t in changed + gone:
+                self._pending[t.icao] = t
+            wake = bool(changed or gone) and not self._wake_pending
+            self._wake_pending = self._wake_pending or wake
         if wake:
+            self._wake()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):  # full or closed: the thread wakes anyway
             self._wake_w.send(b"x")
 
     def close(self) -> None:
@@ -169,11 +219,12 @@ class SbsServer:
         if self._stop.is_set():
             return
         self._stop.set()
-        self._wake_w.send(b"x")
+        self._wake()
         self._thread.join(timeout=2.0)
-        for s in [self._listener, self._wake_r, self._wake_w, *self._clients]:
+        with self._lock:
+            clients, self._clients = list(self._clients.values()), {}
+        for s in [self._listener, self._wake_r, self._wake_w, *(c.sock for c in clients)]:
             s.close()
-        self._clients = []
 
     def __enter__(self) -> SbsServer:
         return self
@@ -184,48 +235,107 @@ class SbsServer:
     # -- the server thread -------------------------------------------------------------
 
     def _run(self) -> None:
+        """Serve until closed; a failure is logged, the clients closed, and it serves again."""
+        while not self._stop.is_set():
+            try:
+                self._serve()
+            except Exception as exc:  # a bug must not end the feed for the rest of the night
+                self._failed(exc)
+                self._stop.wait(_RESTART_DELAY_S)
+
+    def _failed(self, exc: Exception) -> None:
+        with self._lock:
+            self._failures += 1
+            self._last_failure = f"{type(exc).__name__}: {exc}"
+            first = self._failures == 1
+            clients, self._clients = list(self._clients.values()), {}
+        if first:
+            log.exception("SBS-1 feed thread failed; its clients are closed and it serves again")
+        else:
+            log.error("SBS-1 feed thread failed again (%d times): %s", self._failures, exc)
+        for c in clients:
+            c.sock.close()
+        if self._selector is not None:
+            self._selector.close()
+            self._selector = None
+
+    def _serve(self) -> None:
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(self._listener, selectors.EVENT_READ)
+        self._selector.register(self._wake_r, selectors.EVENT_READ)
+        with self._lock:  # a wake-up lost in a failure: the first refresh sends what is pending
+            self._wake_pending = False
+        accept_paused_until: float | None = None
         next_refresh = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_refresh:
                 next_refresh = now + self.refresh_s
                 with self._lock:
-                    pending, self._pending = self._pending, []
+                    pending, self._pending = self._pending, {}
                     due = list(self._live.values())
-                    due += [t for t in pending if t.icao not in self._live]
-                self._send_all(b"".join(lines(t, time.time()) for t in due))
-            with self._lock:
-                clients = list(self._clients)
-            readable, _, _ = select.select(
-                [self._listener, self._wake_r, *clients], [], [], max(0.0, next_refresh - now)
-            )
-            for sock in readable:
-                if sock is self._listener:
-                    self._accept()
-                elif sock is self._wake_r:
-                    self._wake_r.recv(4096)
-                    with self._lock:
-                        pending, self._pending = self._pending, []
-                    self._send_all(b"".join(lines(t, time.time()) for t in pending))
+                    due += [t for t in pending.values() if t.icao not in self._live]
+                self._send_all(due)
+            if accept_paused_until is not None and now >= accept_paused_until:
+                accept_paused_until = None
+                self._selector.register(self._listener, selectors.EVENT_READ)
+            wait_s = next_refresh - now
+            if accept_paused_until is not None:
+                wait_s = min(wait_s, accept_paused_until - now)
+            for key, events in self._selector.select(max(0.0, wait_s)):
+                if key.fileobj is self._listener:
+                    if not self._accept():  # no descriptor left: do not spin on it
+                        self._selector.unregister(self._listener)
+                        accept_paused_until = time.monotonic() + _ACCEPT_PAUSE_S
+                elif key.fileobj is self._wake_r:
+                    self._woken()
                 else:
-                    self._read_client(sock)
+                    self._serve_client(key.fd, events)
 
-    def _accept(self) -> None:
+    def _woken(self) -> None:
         try:
-            client, peer = self._listener.accept()
-        except OSError:
-            return
-        client.setblocking(False)
-        log.info("SBS-1 client %s:%d connected", *peer[:2])
+            while self._wake_r.recv(4096):
+                pass
+        except BlockingIOError:
+            pass
         with self._lock:
-            self._clients.append(client)
-            data = b"".join(lines(t, time.time()) for t in self._live.values())
-        self._send(client, data)
+            self._wake_pending = False
+            pending, self._pending = self._pending, {}
+        self._send_all(list(pending.values()))
 
-    def _read_client(self, client: socket.socket) -> None:
+    def _accept(self) -> bool:
+        """Accept one client and queue every live track for it; False when accept failed."""
+        try:
+            sock, peer = self._listener.accept()
+        except BlockingIOError:
+            return True
+        except OSError as exc:
+            log.warning("SBS-1 feed cannot accept a client: %s", exc)
+            return False
+        sock.setblocking(False)
+        client = _Client(sock, f"{peer[0]}:{peer[1]}")
+        log.info("SBS-1 client %s connected", client.peer)
+        assert self._selector is not None
+        self._selector.register(sock, selectors.EVENT_READ)
+        with self._lock:
+            self._clients[sock.fileno()] = client
+            snapshot = list(self._live.values())
+        self._queue(client, _encode(snapshot))
+        return True
+
+    def _serve_client(self, fd: int, events: int) -> None:
+        client = self._clients.get(fd)
+        if client is None:
+            return
+        if events & selectors.EVENT_READ:
+            self._read_client(client)
+        if events & selectors.EVENT_WRITE and fd in self._clients:
+            self._flush(client)
+
+    def _read_client(self, client: _Client) -> None:
         """Clients send nothing we use; an empty read is a closed connection."""
         try:
-            data = client.recv(4096)
+            data = client.sock.recv(4096)
         except BlockingIOError:
             return
         except OSError:
@@ -233,31 +343,56 @@ class SbsServer:
         if not data:
             self._drop(client, "closed the connection")
 
-    def _send_all(self, data: bytes) -> None:
+    def _send_all(self, due: list[SbsTrack]) -> None:
+        data = _encode(due)
         if not data:
             return
-        with self._lock:
-            clients = list(self._clients)
-        for client in clients:
-            self._send(client, data)
+        for client in list(self._clients.values()):
+            self._queue(client, data)
 
-    def _send(self, client: socket.socket, data: bytes) -> None:
-        """All of ``data`` at once, or the client goes: a client whose socket buffer
-        is full is not reading (it reconnects and gets every track again)."""
+    def _queue(self, client: _Client, data: bytes) -> None:
+        """Append ``data`` to the client's buffer and send what the socket takes now."""
         if not data:
             return
-        try:
-            sent = client.send(data)
-        except OSError as exc:
-            self._drop(client, str(exc))
+        client.out += data
+        if len(client.out) > self.max_client_buffer_bytes:
+            self._drop(
+                client,
+                f"not reading: {len(client.out)} bytes waiting, more than "
+                f"{self.max_client_buffer_bytes} (it gets every track again when it reconnects)",
+            )
             return
-        if sent != len(data):
-            self._drop(client, "not reading")
+        self._flush(client)
 
-    def _drop(self, client: socket.socket, why: str) -> None:
-        with self._lock:
-            if client not in self._clients:
+    def _flush(self, client: _Client) -> None:
+        while client.out:
+            try:
+                sent = client.sock.send(client.out[:_SEND_CHUNK_BYTES])
+            except BlockingIOError:
+                break
+            except OSError as exc:
+                self._drop(client, str(exc))
                 return
-            self._clients.remove(client)
-        log.info("SBS-1 client dropped: %s", why)
-        client.close()
+            del client.out[:sent]
+        want_write = bool(client.out)
+        if want_write != client.writing:
+            client.writing = want_write
+            events = selectors.EVENT_READ | (selectors.EVENT_WRITE if want_write else 0)
+            assert self._selector is not None
+            self._selector.modify(client.sock, events)
+
+    def _drop(self, client: _Client, why: str) -> None:
+        fd = client.sock.fileno()
+        with self._lock:
+            if self._clients.get(fd) is not client:
+                return
+            del self._clients[fd]
+        log.info("SBS-1 client %s dropped: %s", client.peer, why)
+        if self._selector is not None:
+            self._selector.unregister(client.sock)
+        client.sock.close()
+
+
+def _encode(due: Iterable[SbsTrack]) -> bytes:
+    now_unix_s = time.time()
+    return b"".join(lines(t, now_unix_s) for t in due)
