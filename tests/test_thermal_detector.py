@@ -1,0 +1,259 @@
+"""The thermal detector (companion/vision/thermal.py): on the real radiometric
+photos first (skips without them or exiftool), then each rule on frames the test
+draws on a known floor (2 cm a pixel, as a Lepton at about 3 m)."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from companion.sources.flir import read_flir
+from companion.vision.base import FrameGeometry, VisionError
+from companion.vision.thermal import ThermalDetector, ThermalResult
+from companion.vision.thermal_params import ThermalDetectorParams
+from companion.vision.visibility import assess
+from fusion.types import Urgency
+
+needs_exiftool = pytest.mark.skipif(shutil.which("exiftool") is None, reason="exiftool missing")
+
+# Each person's point in the raw thermal picture, counted by eye (bench/thermal_real.py).
+PEOPLE = {
+    "wm_infrared_people_in_laboratory.jpg": [(28, 39), (92, 43), (131, 45), (156, 41), (88, 81)],
+    "wm_thermographie_de_rue_night.jpg": [(80, 50), (93, 47)],
+    "wm_videocamera_termica_seated_group.jpg": [(3, 38), (37, 31), (72, 40), (142, 38)],
+}
+NOT_PEOPLE = [
+    ("thermal_radiometric", "wm02_water_cooler.jpg"),
+    ("thermal_radiometric", "wm08_radiator_through_wall.jpg"),
+    ("thermal_radiometric", "wm11_moving_car.jpg"),
+    ("thermal_radiometric", "wm18_steam_valves.jpg"),
+    ("thermal_radiometric", "wm20_flying_foxes_heat_event.jpg"),
+    ("negatives", "wm_termografia_building_ir.jpg"),
+]
+
+
+def _holds(box: tuple[int, int, int, int], point: tuple[int, int]) -> bool:
+    x, y, w, h = box
+    return x <= point[0] < x + w and y <= point[1] < y + h
+
+
+def _photo(shared_data: Path, folder: str, name: str) -> ThermalResult:
+    temps = read_flir(shared_data / "images" / folder / name).temps_c
+    return ThermalDetector().analyse(temps, None, 0.0)
+
+
+@needs_exiftool
+@pytest.mark.parametrize("name", PEOPLE)
+def test_every_person_in_the_radiometric_photos_is_found(shared_data: Path, name: str) -> None:
+    result = _photo(shared_data, "people_thermal", name)
+    boxes = [f.detection.bbox_xywh_px for f in result.finds]
+    assert all(any(_holds(b, p) for b in boxes) for p in PEOPLE[name])
+    for f in result.finds:
+        d = f.detection
+        assert d.source == "thermal" and "warm" in d.cues and 0.0 <= d.score <= 1.0
+        assert d.expected_area_px is not None  # a photo: the detector's own size prior
+
+
+@needs_exiftool
+def test_the_man_in_cold_water_is_one_critical_warm_part(shared_data: Path) -> None:
+    result = _photo(shared_data, "people_thermal", "wm_man_in_water_ir.jpg")
+    head, left_hand, right_hand = (328, 215), (291, 213), (366, 215)
+    over = [f for f in result.finds if _holds(f.detection.bbox_xywh_px, head)]
+    assert len(over) == 1
+    find = over[0]
+    box = find.detection.bbox_xywh_px
+    assert _holds(box, left_hand) and _holds(box, right_hand)  # one find, not three
+    assert find.detection.cues == ("warm", "warm_part")
+    assert 25.0 <= find.peak_c <= 29.0  # "at most 27 °C" in 7 °C water
+    a = assess(find.detection, None)
+    assert a is not None and a.urgency is Urgency.CRITICAL
+    assert 6.0 <= result.ambient_c <= 8.0
+
+
+@needs_exiftool
+@pytest.mark.parametrize("where", NOT_PEOPLE, ids=lambda w: w[1])
+def test_warm_things_that_are_not_people_give_nothing(
+    shared_data: Path, where: tuple[str, str]
+) -> None:
+    assert _photo(shared_data, *where).finds == []
+
+
+@needs_exiftool
+def test_machinery_is_turned_down_as_hotter_than_skin(shared_data: Path) -> None:
+    result = _photo(shared_data, "thermal_radiometric", "wm18_steam_valves.jpg")
+    assert result.rejected and all(r.reason == "hotter than skin" for r in result.rejected)
+
+
+@needs_exiftool
+def test_in_a_heat_event_the_background_is_the_ambient(shared_data: Path) -> None:
+    result = _photo(shared_data, "thermal_radiometric", "wm20_flying_foxes_heat_event.jpg")
+    assert result.ambient_c > 40.0 and result.finds == []
+
+
+# --- rules on drawn frames -------------------------------------------------------
+
+FLOOR_FROM_V = 30  # rows above it see no floor (above the horizon)
+MPP = 0.02
+
+
+def _geometry() -> FrameGeometry:
+    return FrameGeometry.constant(MPP, floor_from_v_px=FLOOR_FROM_V)
+
+
+def _scene(ambient_c: float = 18.0, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = np.full((120, 160), ambient_c, np.float32)
+    t += np.linspace(-0.5, 0.5, 160, dtype=np.float32)[None, :]  # a gentle gradient
+    return t + rng.normal(0.0, 0.05, t.shape).astype(np.float32)  # a Lepton's noise
+
+
+def _ellipse(t: np.ndarray, centre: tuple[int, int], axes_m: tuple[float, float], c: float) -> None:
+    mask = np.zeros(t.shape, np.uint8)
+    axes = (max(1, round(axes_m[0] / 2 / MPP)), max(1, round(axes_m[1] / 2 / MPP)))
+    cv2.ellipse(mask, centre, axes, 0, 0, 360, 1, -1)
+    t[mask > 0] = c
+
+
+def _lying_person(t: np.ndarray, centre: tuple[int, int] = (80, 80)) -> None:
+    _ellipse(t, centre, (1.6, 0.4), 27.0)  # clothes
+    cx, cy = centre
+    _ellipse(t, (cx - 34, cy), (0.2, 0.16), 33.0)  # the face
+    _ellipse(t, (cx - 5, cy + 9), (0.1, 0.06), 31.0)  # a hand
+
+
+def test_a_lying_person_is_one_find_on_the_floor() -> None:
+    t = _scene()
+    _lying_person(t)
+    finds = ThermalDetector().analyse(t, _geometry(), 0.0).finds
+    assert len(finds) == 1
+    d = finds[0].detection
+    assert d.cues == ("warm",)
+    assert finds[0].area_m2 is not None and 0.35 <= finds[0].area_m2 <= 0.65
+    assert abs(d.u_px - 80) < 4 and abs(d.v_px - 80) < 4  # its centre: where it lies
+    assert d.expected_area_px is None  # a geometry gives the size prior
+    assert d.visible_area_px == pytest.approx(finds[0].area_m2 / MPP**2, rel=0.01)
+
+
+def test_a_hand_alone_is_a_warm_part() -> None:
+    t = _scene()
+    _ellipse(t, (60, 90), (0.12, 0.08), 32.0)
+    finds = ThermalDetector().analyse(t, _geometry(), 0.0).finds
+    assert [f.detection.cues for f in finds] == [("warm", "warm_part")]
+
+
+def test_a_head_and_two_cold_hands_are_one_part() -> None:
+    t = _scene(ambient_c=7.0)
+    _ellipse(t, (80, 80), (0.18, 0.2), 27.0)  # a head out of cold water
+    _ellipse(t, (66, 82), (0.08, 0.06), 15.0)  # hands, cooled by the water
+    _ellipse(t, (95, 82), (0.08, 0.06), 17.0)
+    finds = ThermalDetector().analyse(t, _geometry(), 0.0).finds
+    assert len(finds) == 1 and finds[0].detection.cues == ("warm", "warm_part")
+    x, _y, w, _h = finds[0].detection.bbox_xywh_px
+    assert x <= 64 and x + w >= 97
+
+
+def _heating_pipes(t: np.ndarray) -> None:
+    """2 m x 1.6 m of floor over heating pipes: 30 and 33 °C in stripes (not flat)."""
+    t[40:120, 20:120] = 30.0
+    t[40:120:6, 20:120] = 33.0
+
+
+@pytest.mark.parametrize(
+    ("draw", "reason"),
+    [
+        (lambda t: _ellipse(t, (80, 80), (1.0, 0.5), 70.0), "hotter than skin"),
+        (lambda t: _ellipse(t, (80, 80), (0.7, 0.7), 30.0), "large and flat"),
+        (_heating_pipes, "larger than a person"),
+        (lambda t: t.__setitem__((slice(2, 26), slice(40, 46)), 32.0), "above the floor"),
+    ],
+    ids=["machinery", "floor heating", "heated floor", "pipe on a wall"],
+)
+def test_what_a_person_cannot_be_is_turned_down(
+    draw: Callable[[np.ndarray], None], reason: str
+) -> None:
+    t = _scene()
+    t[35:, :] = _scene(seed=1)[35:, :]
+    draw(t)
+    result = ThermalDetector().analyse(t, _geometry(), 0.0)
+    assert result.finds == []
+    assert any(reason in r.reason for r in result.rejected), result.rejected
+
+
+def test_colder_than_a_body_is_not_a_person_even_against_a_cold_scene() -> None:
+    t = _scene(ambient_c=-3.0)
+    _ellipse(t, (80, 80), (1.0, 0.5), 9.0)  # a radiator's heat through a winter wall
+    assert ThermalDetector().analyse(t, _geometry(), 0.0).finds == []
+
+
+def test_animals_cooler_than_a_hot_background_are_not_found() -> None:
+    t = _scene(ambient_c=45.0)
+    _ellipse(t, (80, 80), (0.3, 0.2), 38.0)
+    assert ThermalDetector().analyse(t, _geometry(), 0.0).finds == []
+
+
+def test_a_fading_imprint_is_dropped_and_a_person_is_not() -> None:
+    detector = ThermalDetector()
+    seen_imprint, seen_person = [], []
+    for i in range(120):  # 14 s at 8.7 frames a second
+        t_s = i / 8.7
+        t = _scene(seed=i)
+        _ellipse(t, (40, 80), (0.5, 0.3), 30.0 - 0.15 * t_s)  # an imprint, cooling
+        _ellipse(t, (120, 80), (0.5, 0.3), 31.0)  # a person's torso
+        finds = detector.analyse(t, _geometry(), t_s).finds
+        seen_imprint.append(any(f.detection.u_px < 80 for f in finds))
+        seen_person.append(any(f.detection.u_px > 80 for f in finds))
+    assert all(seen_person)
+    assert seen_imprint[0]  # at first it cannot be told from a person
+    assert not any(seen_imprint[60:])  # once it has been seen cooling for seconds
+
+
+def test_a_photo_gets_the_pixel_size_prior() -> None:
+    t = _scene()
+    _lying_person(t)
+    finds = ThermalDetector().analyse(t, None, 0.0).finds
+    assert len(finds) == 1
+    assert finds[0].detection.expected_area_px == pytest.approx(0.06 * 160 * 120)
+    assert finds[0].area_m2 is None
+
+
+def test_an_empty_scene_gives_nothing() -> None:
+    result = ThermalDetector().analyse(_scene(), _geometry(), 0.0)
+    assert result.finds == [] and result.rejected == []
+    assert 17.5 < result.ambient_c < 18.5
+
+
+@pytest.mark.parametrize(
+    "frame",
+    [
+        np.zeros((4, 4, 3), np.float32),
+        np.zeros((120, 160), np.uint16),
+        np.zeros((0, 5), np.float32),
+    ],
+)
+def test_a_frame_that_is_not_temperatures_is_refused(frame: np.ndarray) -> None:
+    with pytest.raises(VisionError, match="2-D float"):
+        ThermalDetector().detect(frame, None, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ({"min_contrast_k": 0.0}, "min_contrast_k"),
+        ({"max_skin_c": float("nan")}, "max_skin_c"),
+        ({"min_body_c": 45.0}, "min_body_c"),
+        ({"part_max_area_m2": 2.0}, "part_max_area_m2"),
+        ({"photo_body_share": 1.5}, "photo_body_share"),
+        ({"min_blob_px": 2.5}, "min_blob_px"),
+        ({"min_peak_contrast_k": 1.0}, "min_peak_contrast_k"),
+        ({"fade_min_span_s": 30.0}, "fade_min_span_s"),
+        ({"merge_gap_m": "wide"}, "merge_gap_m"),
+    ],
+)
+def test_each_setting_is_checked(change: dict[str, object], named: str) -> None:
+    with pytest.raises(ValueError, match=named):
+        ThermalDetectorParams(**change)  # type: ignore[arg-type]
