@@ -8,6 +8,7 @@ browsers (or a broken proxy) would hold them.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import resource
 import socket
@@ -16,10 +17,12 @@ import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from bench.hq_console import HqConsoleProcess, Mission
+from fusion.types import Urgency
 
 FD_LIMIT = 1024  # a laptop's default soft limit of open files
 ORIGIN = "47.397742,8.545594,488"  # victims on QGC's map need a place on Earth
@@ -106,3 +109,39 @@ def test_a_flood_of_console_connections_is_capped_and_said_once(tmp_path: Path) 
     assert "Traceback" not in log and "Too many open files" not in log, log[-2000:]
     assert log.count("connections open, the most it serves") == 1, log[-2000:]
     assert log.count("live pages open, the most it serves") == 1, log[-2000:]
+
+
+def _next_state(stream: Any) -> dict[str, Any]:
+    while True:
+        line = stream.readline()
+        assert line, "the event stream ended"
+        if line.startswith(b"data: "):
+            return dict(json.loads(line[6:]))
+
+
+def test_the_state_is_built_only_for_a_watcher_and_once_per_change(tmp_path: Path) -> None:
+    hq = HqConsoleProcess(tmp_path, "--link-timeout-s", "60")
+    mission = Mission(hq.address, (1, 2))
+    try:
+        # no page open: two seconds of reports build nothing...
+        for i in range(10):
+            mission.report(1 + i % 2, 10 + i, 3.0 * i, 1.0)
+            time.sleep(0.2)
+        with urllib.request.urlopen(hq.url + "api/state", timeout=5.0) as resp:
+            asked = json.loads(resp.read())
+        assert asked["builds"] == 1 and len(asked["victims"]) == 10  # ...until one is asked for
+        with urllib.request.urlopen(hq.url + "api/state", timeout=5.0) as resp:
+            assert json.loads(resp.read())["builds"] == 1  # nothing changed since
+        # a page watches: it gets that state, then one build per change
+        with urllib.request.urlopen(hq.url + "api/events", timeout=1.5) as stream:
+            assert _next_state(stream)["builds"] == 1
+            mission.report(2, 40, 30.0, 5.0, Urgency.CRITICAL)
+            state = _next_state(stream)
+            assert state["builds"] == 2 and state["victims"][0]["urgency"] == "CRITICAL"
+            mission.report(1, 41, 33.0, 5.0)
+            assert _next_state(stream)["builds"] == 3
+            with pytest.raises(TimeoutError):  # nothing changes: nothing is built or sent
+                _next_state(stream)
+    finally:
+        mission.close()
+        assert hq.stop() == 0, "".join(hq.stderr)

@@ -13,6 +13,7 @@ import io
 import json
 import math
 import socket
+import sqlite3
 import subprocess
 import sys
 import time
@@ -26,11 +27,21 @@ import pytest
 
 import npmfetch
 from bench.hq_console import HqConsoleProcess, Mission
-from fusion.types import TrackState, Urgency
-from hq.records import ACK_RESULT_REJECTED, Action, OperatorAction, Robot, RobotStatus
-from hq.view import HqVictim
+from fusion.types import TrackState, Urgency, VictimReport
+from hq.records import (
+    ACK_RESULT_REJECTED,
+    Action,
+    IncomingReport,
+    OperatorAction,
+    Robot,
+    RobotStatus,
+)
+from hq.registry import Registry
+from hq.view import HqVictim, hq_victims
 from hq.web import assets
-from hq.web.state import LiveRobots, ellipse_95, robots_lost, snapshot
+from hq.web.feed import Changes, picture_versions
+from hq.web.notes import Notes
+from hq.web.state import LiveRobots, Page, ellipse_95, robots_lost, snapshot
 
 REPO = Path(__file__).resolve().parents[1]
 TOKEN = "correct-horse-battery"
@@ -81,6 +92,85 @@ def test_list_order_open_first_then_urgency_then_waiting_longest() -> None:
         }
     ]  # fmt: skip
     assert rescued["picture"] is None  # no picture: the page shows its placeholder
+
+
+T_UNIX_S = 1_700_000_000.0
+
+
+def _report(
+    robot: int, victim: int, north_m: float, urgency: Urgency = Urgency.MEDIUM, **kw: Any
+) -> VictimReport:
+    fields: dict[str, Any] = {
+        "victim_id": victim, "robot_sysid": robot, "state": TrackState.CONFIRMED,
+        "urgency": urgency, "visibility_pct": 30.0, "north_m": north_m, "east_m": 10.0 * robot,
+        "down_m": 0.0, "cov_ne_m2": ((0.25, 0.0), (0.0, 0.25)), "observations": 3,
+        "first_seen_unix_s": T_UNIX_S - 10.0, "last_seen_unix_s": T_UNIX_S,
+    }  # fmt: skip
+    return VictimReport(**{**fields, **kw})
+
+
+def test_the_page_state_is_updated_from_what_changed_and_equals_a_full_build(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "hq.sqlite"
+    registry, notes = Registry(path), Notes(path)
+    read = sqlite3.connect(f"file:{path}?mode=ro", uri=True, isolation_level=None)
+    changes, page = Changes(read), Page()
+    seq = iter(range(1, 10_000))
+
+    def store(report: VictimReport, merged_into: int = 0) -> None:
+        n = next(seq)
+        registry.store_reports([IncomingReport(report, n, n, merged_into, 191, T_UNIX_S)])
+
+    def updated() -> dict[str, Any]:
+        """The page brought up to date from the changes, as the console does."""
+        changes.update(registry, notes, page)
+        page.set_robots(registry.robots(), {}, T_UNIX_S, 5.0)
+        return dict(json.loads(page.json(T_UNIX_S, 5.0)))
+
+    def full() -> dict[str, Any]:
+        victims = hq_victims(registry)
+        pictures = picture_versions(registry, victims)
+        return snapshot(
+            victims, registry.robots(), registry.actions(), notes.all(), {}, pictures,
+            T_UNIX_S, 5.0,
+        )  # fmt: skip
+
+    def rebuilt_by(step: Any) -> int:
+        """How many victims the update after ``step`` rebuilt; the page equals a full build."""
+        before = changes.victims_built
+        step()
+        assert updated() == full()
+        return changes.victims_built - before
+
+    try:
+        for robot in (1, 2, 3):
+            for victim in range(1, 11):
+                store(_report(robot, victim, 10.0 * victim))
+        assert rebuilt_by(lambda: None) == 30
+        assert rebuilt_by(lambda: None) == 0  # nothing changed: nothing rebuilt
+        assert rebuilt_by(lambda: store(_report(2, 5, 50.5, Urgency.CRITICAL))) == 1
+        hq_id = next(
+            v["id"] for v in full()["victims"] if v["sources"] == [{"robot": 2, "victim_id": 5}]
+        )
+        assert rebuilt_by(lambda: notes.add(hq_id, "voices heard")) == 1
+        seq_rescued = registry.add_action(2, 5, OperatorAction.RESCUED)
+        assert rebuilt_by(lambda: None) == 1  # the action being sent
+        assert rebuilt_by(lambda: registry.ack_action(seq_rescued, T_UNIX_S, 2)) == 1
+        assert page_victim(updated(), hq_id)["actions"][0]["rejected"] is True
+        assert rebuilt_by(lambda: registry.store_picture(2, 5, 9, b"\xff\xd8jpeg", T_UNIX_S)) == 1
+        # robot 3 finds its victim 6 is its victim 7: the two HQ victims become one
+        merged = _report(3, 6, 70.0, state=TrackState.MERGED)
+        assert rebuilt_by(lambda: store(merged, merged_into=7)) == 1
+        assert len(updated()["victims"]) == 29
+    finally:
+        read.close()
+        notes.close()
+        registry.close()
+
+
+def page_victim(state: dict[str, Any], hq_id: int) -> dict[str, Any]:
+    return dict(next(v for v in state["victims"] if v["id"] == hq_id))
 
 
 def test_path_keeps_its_shape_in_bounded_memory() -> None:
