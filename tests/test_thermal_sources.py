@@ -617,3 +617,28 @@ def test_any_bytes_in_a_frames_folder_are_frames_or_one_line(
         assert read + source.frames_skipped == len(contents)
     except CameraError as exc:
         assert "is 16x12, [thermal] is configured for 160x120" in str(exc)
+
+
+def test_a_real_lepton_sized_scene_through_the_camera_and_the_folder(
+    shared_data: Path, tmp_path: Path, devices: list[Any]
+) -> None:
+    """Two people in a street at night, a FLIR photo whose raw image is 160x120 (a
+    Lepton's size): as the Lepton would send it (Y16 centi-kelvin with telemetry rows),
+    then recorded and replayed, it comes back to the centi-kelvin."""
+    import shutil
+
+    from companion.sources.flir import read_flir
+
+    if shutil.which("exiftool") is None:
+        pytest.skip("exiftool (libimage-exiftool-perl) is not installed")
+    photo = shared_data / "images" / "people_thermal" / "wm_thermographie_de_rue_night.jpg"
+    scene = read_flir(photo).temps_c
+    assert scene.shape == (120, 160)
+    dev, source = _open(devices)
+    dev.frames.put(np.concatenate([_centi_k(scene), np.zeros((2, 160), np.uint16)]))
+    live = source.read(2.0)
+    assert np.abs(live.temps_c - scene).max() < 0.006
+    write_thermal_frame(tmp_path, live)
+    replayed = ThermalFramesDir(tmp_path, 160, 120).read(1.0)
+    assert np.abs(replayed.temps_c - scene).max() < 0.011
+    assert replayed.t_unix_s == pytest.approx(live.t_unix_s, abs=1e-6)

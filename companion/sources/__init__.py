@@ -19,6 +19,11 @@ ReopeningSource that retries with backoff, its frames at the configured size
 (``size.SizedSource``). ``parse_source`` checks the string only
 (for the config stage). Relative PATH/DIR are taken as given (the config loader
 does not resolve them: they are strings).
+
+The thermal camera (``[thermal] source``, table in ``thermal.py``) has its own frames
+(``ThermalFrame``, temperatures in °C): ``open_thermal(config.thermal)`` opens it
+behind the same reopening; ``ThermalFramesDir`` and ``write_thermal_frame`` read and
+record its frames folder.
 """
 
 from __future__ import annotations
@@ -40,6 +45,9 @@ from companion.sources.base import (
 from companion.sources.folder import FramesDirSource, frame_filename, write_frame
 from companion.sources.reopen import ReopeningSource
 from companion.sources.sim import DEFAULT_HOST, DEFAULT_PORT, SimSource, encode_sim_frame
+from companion.sources.thermal import ThermalFrame, ThermalSource, parse_thermal_source
+from companion.sources.thermal_folder import ThermalFramesDir, write_thermal_frame
+from companion.sources.thermal_open import ReopeningThermalSource, open_thermal
 
 __all__ = [
     "CameraError",
@@ -48,13 +56,20 @@ __all__ = [
     "Frame",
     "FrameSource",
     "ReopeningSource",
+    "ReopeningThermalSource",
     "SourceSpec",
+    "ThermalFrame",
+    "ThermalFramesDir",
+    "ThermalSource",
     "encode_sim_frame",
     "frame_filename",
     "open_camera",
     "open_source",
+    "open_thermal",
     "parse_source",
+    "parse_thermal_source",
     "write_frame",
+    "write_thermal_frame",
 ]
 
 Kind = Literal["sim", "device", "gstreamer", "url", "file", "frames", "picamera2"]
