@@ -95,6 +95,10 @@ def infiray_kelvin(image: object, name: str, width_px: int, height_px: int) -> n
     height x width), or why it is not one; CameraError naming both sizes for a frame
     of another size."""
     full = (2 * height_px, width_px)
+    wrong_size = (
+        f"an InfiRay of [thermal] {width_px}x{height_px} sends {width_px}x{full[0]} "
+        "(its picture above its temperatures)"
+    )
     if (
         isinstance(image, np.ndarray)
         and image.dtype == np.uint8
@@ -102,29 +106,26 @@ def infiray_kelvin(image: object, name: str, width_px: int, height_px: int) -> n
         and 1 in image.shape
     ):  # OpenCV handed over the buffer as one row of bytes
         if image.size != 2 * full[0] * full[1]:
-            raise CameraError(
-                f"{name}: frames are {image.size} bytes, an InfiRay of [thermal] "
-                f"{width_px}x{height_px} sends {width_px}x{full[0]} YUYV "
-                f"({2 * full[0] * full[1]} bytes)"
-            )
+            raise CameraError(f"{name}: frames are {image.size} bytes, {wrong_size} in YUYV")
         image = image.reshape(*full, 2)
     if (
         isinstance(image, np.ndarray)
         and image.dtype == np.uint8
         and image.ndim == 3
         and image.shape[2] == 2
-    ):  # YUYV bytes, low byte first
-        image = image[..., 0].astype(np.uint16) | (image[..., 1].astype(np.uint16) << 8)
+    ):  # YUYV bytes: one little-endian word per pixel
+        h, w = image.shape[:2]
+        if (h, w) != full:
+            raise CameraError(f"{name}: frames are {w}x{h}, {wrong_size}")
+        below = np.ascontiguousarray(image[height_px:]).view("<u2")[..., 0]
+        return below.astype(np.float32) / np.float32(64.0)
     if why := not_temperatures(image):
         return f"{why} (is CONVERT_RGB off?)"
     assert isinstance(image, np.ndarray)  # not_temperatures said so
     words = image.reshape(image.shape[:2])
     h, w = words.shape
     if (h, w) != full:
-        raise CameraError(
-            f"{name}: frames are {w}x{h}, an InfiRay of [thermal] {width_px}x{height_px} "
-            f"sends {width_px}x{full[0]} (its picture above its temperatures)"
-        )
+        raise CameraError(f"{name}: frames are {w}x{h}, {wrong_size}")
     return words[height_px:].astype(np.float32) / np.float32(64.0)
 
 
@@ -134,7 +135,9 @@ def object_temps_c(apparent_k: np.ndarray, emissivity: float) -> np.ndarray:
     if emissivity >= 1.0:
         return (apparent_k - np.float32(ZERO_C_K)).astype(np.float32)
     a4 = np.square(np.square(apparent_k.astype(np.float32)))
-    reflected4 = np.float32(np.median(a4))
+    flat = a4.ravel()
+    middle = flat.size // 2
+    reflected4 = np.float32(np.partition(flat, middle)[middle])  # the median (np.median: 8x slower)
     e = np.float32(emissivity)
     obj4 = np.maximum((a4 - (np.float32(1.0) - e) * reflected4) / e, np.float32(0.0))
     temps_c: np.ndarray = np.sqrt(np.sqrt(obj4)) - np.float32(ZERO_C_K)
