@@ -2,6 +2,7 @@
 
     rescue-sim world  (--preset P | --seed S | --world W) [--out W.toml]
     rescue-sim record (--preset P | --seed S | --world W) --out DIR [--duration-s T]
+                      [--no-thermal]
     rescue-sim score  --truth DIR/ground_truth.json --victims REPORT.json [--json]
     rescue-sim sheet  (--preset P | --seed S | --world W) --out sheet.png
     rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
@@ -97,7 +98,9 @@ def _parser() -> argparse.ArgumentParser:
     _world_args(w)
     w.add_argument("--out", type=Path, help="write the world TOML here")
 
-    r = sub.add_parser("record", help="record a mission (tlog, frames, camera, truth)")
+    r = sub.add_parser(
+        "record", help="record a mission (tlog, colour and thermal frames, camera, truth)"
+    )
     _world_args(r)
     r.add_argument("--out", type=Path, required=True, help="output directory")
     r.add_argument("--duration-s", type=_DURATION_S, help="default: the whole route")
@@ -106,6 +109,11 @@ def _parser() -> argparse.ArgumentParser:
         "--start-unix-s",
         type=_number(0.0, 4e9, low_open=False),
         help="wall time of simulation start (default: now)",
+    )
+    r.add_argument(
+        "--no-thermal",
+        action="store_true",
+        help="no thermal camera: no thermal/ folder and no [thermal] section",
     )
 
     s = sub.add_parser("score", help="score a victim report against the ground truth")
@@ -173,10 +181,17 @@ def _cmd_record(args: argparse.Namespace, world: World) -> int:
     from scenarios.record import record
 
     res = record(
-        world, args.out, duration_s=args.duration_s, fps=args.fps, start_unix_s=args.start_unix_s
+        world,
+        args.out,
+        duration_s=args.duration_s,
+        fps=args.fps,
+        start_unix_s=args.start_unix_s,
+        thermal=not args.no_thermal,
     )
+    thermal = f", {res.thermal_frames} thermal frames" if not args.no_thermal else ""
     print(
-        f"recorded {res.duration_s:.1f} s: {res.frames} frames, {res.packets} packets -> {res.out_dir}"
+        f"recorded {res.duration_s:.1f} s: {res.frames} frames{thermal}, {res.packets} packets "
+        f"-> {res.out_dir}"
     )
     return EXIT_OK
 

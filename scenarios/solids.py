@@ -210,6 +210,41 @@ class Solids:
         self._items += [(-k, pr) for k, pr in enumerate(self.prisms, start=1)]
         self._items += [(PROP_BASE + q, part) for q, part in enumerate(self.props)]
         self._anchors = [_anchors(it) for _, it in self._items]
+        # Groups of items culled together when their bounding sphere is out of view: a
+        # body's solids, each prism, each warm object's parts.
+        groups: list[tuple[F, float, int]] = []
+        for body in self.bodies:
+            groups.append((body.centre, body.bound_radius_m, len(body.solids)))
+        for pr in self.prisms:
+            groups.append((pr.centre, pr.radius_m, 1))
+        for part in self.props:
+            _a, _r, centre, bound = _anchors(part)
+            groups.append((centre, bound, 1))
+        self._group_centres = np.array([g[0] for g in groups], float).reshape(-1, 3)
+        self._group_radii = np.array([g[1] for g in groups], float)
+        self._group_sizes = np.array([g[2] for g in groups], int)
+
+    def _in_view(self, cam_centre: F, r_nc: F) -> NDArray[np.bool_]:
+        """Per item: whether its group's bounding sphere may reach into the image."""
+        k = self.camera.intrinsics
+        rel = (self._group_centres - cam_centre) @ r_nc  # camera frame, z forward
+        r = self._group_radii
+        z = rel[:, 2]
+        keep = z > -r
+        far = z > r + 0.05  # wholly in front: test the sphere's image against the frame
+        if far.any():
+            uv = self.camera.project_camera(rel[far])
+            dist = np.linalg.norm(rel[far], axis=1)
+            zf = z[far]
+            r_px = _CULL_MARGIN * max(k.fx_px, k.fy_px) * r[far] * dist / (zf * (zf - r[far]))
+            inside = (
+                (uv[:, 0] + r_px + 2 >= 0)
+                & (uv[:, 0] - r_px - 2 <= k.width_px)
+                & (uv[:, 1] + r_px + 2 >= 0)
+                & (uv[:, 1] - r_px - 2 <= k.height_px)
+            )
+            keep[np.nonzero(far)[0][~inside]] = False
+        return np.repeat(keep, self._group_sizes)
 
     def _rects(
         self, anchors: list[tuple[F, float, F, float]], cam_centre: F, r_nc: F, rays: F
@@ -265,8 +300,12 @@ class Solids:
         material = np.zeros((h, w), np.int8)
         if not self._items:
             return Hits(owner, depth, normal, material)
-        rects = self._rects(self._anchors, cam_centre, r_nc, rays)
-        for (item_id, item), rect in zip(self._items, rects, strict=True):
+        live = np.nonzero(self._in_view(cam_centre, r_nc))[0]
+        if len(live) == 0:
+            return Hits(owner, depth, normal, material)
+        rects = self._rects([self._anchors[i] for i in live], cam_centre, r_nc, rays)
+        for i, rect in zip(live, rects, strict=True):
+            item_id, item = self._items[i]
             if rect is None:
                 continue
             x0, y0, x1, y1 = rect

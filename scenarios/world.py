@@ -146,9 +146,11 @@ class Debris:
         length_m: float,
         width_m: float,
         heading_rad: float,
+        heat_through: float = math.nan,
     ) -> Debris:
         """A rectangle centred at (north, east), its length along heading_rad."""
-        return cls(kind, colour_rgb, _box(north_m, east_m, length_m, width_m, heading_rad))
+        box = _box(north_m, east_m, length_m, width_m, heading_rad)
+        return cls(kind, colour_rgb, box, heat_through)
 
     @property
     def polygon(self) -> np.ndarray:
