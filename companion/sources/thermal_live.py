@@ -63,11 +63,14 @@ def find_purethermal(video4linux: Path = VIDEO4LINUX) -> str:
         number = node.name[5:]
         try:
             card = (node / "name").read_text(encoding="utf-8", errors="replace")
-            index_text = (node / "index").read_text().strip() if (node / "index").exists() else "0"
+            index_file = node / "index"
+            index_text = (
+                index_file.read_text(errors="replace").strip() if index_file.exists() else "0"
+            )
         except OSError:
             continue
-        if number.isdigit() and PURETHERMAL_CARD in card.lower():
-            index = int(index_text) if index_text.isdigit() else 0
+        if number.isdecimal() and PURETHERMAL_CARD in card.lower():
+            index = int(index_text) if index_text.isdecimal() else 0
             found.append((index, int(number), f"/dev/video{number}"))
     if not found:
         raise CameraError(
