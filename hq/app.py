@@ -167,6 +167,7 @@ class HqApp:
                 t.join(timeout=2 * _READ_TIMEOUT_S)
             self.output.changed()
             self.output.refresh(time.monotonic(), force=True)
+            self.output.close()
 
     def _reader(self, index: int, endpoint: Endpoint) -> None:
         while not self._stop.is_set():

@@ -32,6 +32,7 @@ from hq import epoch, export, table
 from hq.app import HqApp, HqOptions
 from hq.errors import HqError
 from hq.merge import Origins
+from hq.output import TerminalWriter, WriterLogHandler
 from hq.records import OperatorAction
 from hq.registry import Registry
 from hq.registry_file import RegistryCorrupt, RegistryError
@@ -506,10 +507,17 @@ def main(argv: list[str] | None = None) -> int:
     }
     make_parser, run = parsers[command]
     args = make_parser().parse_args(argv)  # exits 2 on bad usage
+    # `run`'s log goes through its own writer thread: a paused terminal must not stall
+    # the main thread that acknowledges reports (hq/output.py).
+    handler = (
+        WriterLogHandler(TerminalWriter(sys.stderr, "hq-log"))
+        if command == "run"
+        else logging.StreamHandler(sys.stderr)
+    )
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     logging.basicConfig(
         level=logging.INFO if getattr(args, "verbose", False) else logging.WARNING,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
+        handlers=[handler],
     )
     try:
         return run(args)
@@ -519,6 +527,8 @@ def main(argv: list[str] | None = None) -> int:
     except LinkError as exc:
         print(f"rescue-hq: {exc}", file=sys.stderr)
         return EXIT_RUNTIME
+    finally:
+        handler.close()  # the last lines written (or, on a terminal that does not read, not)
 
 
 if __name__ == "__main__":
