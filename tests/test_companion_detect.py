@@ -4,6 +4,7 @@ with --annotate, and how it names every input it cannot read (exit status 2)."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -251,3 +252,82 @@ def test_damaged_image_bytes_never_raise(
         assert json.loads(out)["image"] == str(path)
     else:
         assert out == "" and str(path) in err
+
+
+# --- thermal pictures ----------------------------------------------------------
+
+THERMAL_KEYS = DETECTION_KEYS | {"peak_c", "mean_c", "area_m2"}
+
+
+def _centikelvin_png(path: Path, temps_c: np.ndarray) -> None:
+    assert cv2.imwrite(str(path), np.round((temps_c + 273.15) * 100.0).astype(np.uint16))
+
+
+def _cold_room_with_a_hand(warm_c: float) -> np.ndarray:
+    rng = np.random.default_rng(5)
+    temps = 18.0 + rng.normal(0.0, 0.05, (120, 160))
+    temps[70:76, 50:56] = warm_c  # a hand, 6x6 Lepton pixels
+    return temps
+
+
+@pytest.mark.skipif(shutil.which("exiftool") is None, reason="exiftool missing")
+def test_a_radiometric_jpeg_gives_temperatures_and_a_false_colour_picture(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    photo = shared_data / "images" / "people_thermal" / "wm_man_in_water_ir.jpg"
+    done = _detect("--json", "--annotate", tmp_path, photo)
+    assert done.returncode == 0, done.stderr
+    (doc,) = _json_lines(done.stdout)
+    temps = doc["thermal"]
+    assert isinstance(temps, dict)
+    assert temps["min_c"] < temps["ambient_c"] < temps["max_c"]
+    assert 5.0 < temps["ambient_c"] < 9.0 and 25.0 < temps["max_c"] < 29.0
+    dets = doc["detections"]
+    assert isinstance(dets, list)
+    man = [d for d in dets if d["box"][0] <= 328 < d["box"][0] + d["box"][2]]
+    assert len(man) == 1 and set(man[0]) == THERMAL_KEYS
+    assert man[0]["cues"] == ["warm", "warm_part"] and man[0]["urgency"] == "CRITICAL"
+    assert man[0]["peak_c"] == pytest.approx(temps["max_c"], abs=0.5)
+    drawn = cv2.imread(str(tmp_path / "wm_man_in_water_ir.png"))
+    assert drawn is not None and drawn.shape[0] == 480 and drawn.shape[1] > 640  # + the scale
+    b, _g, r = (drawn[..., i].astype(int) for i in range(3))
+    assert (np.abs(r - b) > 40).mean() > 0.1  # false colour, not grey
+    text = _detect(photo)
+    assert text.returncode == 0 and "ambient" in text.stdout and "peak" in text.stdout
+
+
+def test_a_thermal_frames_folder_is_read_in_centi_kelvin(tmp_path: Path) -> None:
+    frames = tmp_path / "thermal"
+    frames.mkdir()
+    t0_us = 1_764_000_000_000_000
+    for i in range(3):
+        _centikelvin_png(frames / f"{t0_us + i * 115_000}.png", _cold_room_with_a_hand(32.0))
+    done = _detect("--json", "--annotate", tmp_path / "ann", frames)
+    assert done.returncode == 0, done.stderr
+    docs = _json_lines(done.stdout)
+    assert [Path(str(d["image"])).name for d in docs] == sorted(p.name for p in frames.iterdir())
+    for doc in docs:
+        assert doc["thermal"]["ambient_c"] == pytest.approx(18.0, abs=0.1)  # type: ignore[index]
+        dets = doc["detections"]
+        assert isinstance(dets, list) and len(dets) == 1
+        hand = dets[0]
+        assert hand["box"] == [50, 70, 6, 6]
+        assert hand["peak_c"] == pytest.approx(32.0, abs=0.01)
+        assert hand["cues"] == ["warm", "warm_part"]
+    assert len(list((tmp_path / "ann").glob("*.png"))) == 3
+
+
+def test_thermal_pictures_that_are_not_temperatures_are_named(tmp_path: Path) -> None:
+    zeros = tmp_path / "a_zeros.png"  # 0 centi-kelvin: a dead or unconverted frame
+    assert cv2.imwrite(str(zeros), np.zeros((120, 160), np.uint16))
+    good = tmp_path / "b_good.png"
+    _centikelvin_png(good, _cold_room_with_a_hand(31.0))
+    flir_cut = tmp_path / "c_cut.jpg"
+    flir_cut.write_bytes(b"\xff\xd8\xff\xe1\x00\x10FLIR\x00\x01" + bytes(100))
+    done = _detect("--json", zeros, good, flir_cut)
+    assert done.returncode == 2
+    assert [d["image"] for d in _json_lines(done.stdout)] == [str(good)]
+    complaints = [ln for ln in done.stderr.splitlines() if ln.startswith("rescue-companion")]
+    assert sum("a_zeros.png" in ln and "centi-kelvin" in ln for ln in complaints) == 1
+    assert sum("c_cut.jpg" in ln for ln in complaints) == 1
+    assert "Traceback" not in done.stderr
