@@ -34,6 +34,8 @@ views), those at 20 % a little less often (0.67 against 0.71).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -41,14 +43,16 @@ import numpy as np
 from companion.config import DetectorConfig
 from companion.vision import FrameGeometry, make_detector
 from companion.vision.visibility import assess
+from fusion.camera import CameraModel
 from fusion.errors import GeolocationRejected
 from fusion.geolocate import geolocate
 from fusion.params import GeolocationParams
-from fusion.types import PoseSample, Urgency
+from fusion.types import Detection, PoseSample, Urgency
 from scenarios.body3d import PATTERNS, POSTURES, SLEEVES, Sleeves
-from scenarios.camera import VEHICLE_HEIGHT_M, default_camera
+from scenarios.camera import VEHICLE_HEIGHT_M, default_camera, default_thermal_camera
 from scenarios.generate import CLOTHING, HAIR, SKIN, TROUSERS, bury
 from scenarios.render import Renderer
+from scenarios.thermal import ThermalRenderer
 from scenarios.world import Victim, World
 
 LEVELS_PCT = (100, 50, 20, 5)
@@ -129,6 +133,87 @@ def measure_level(level_pct: int, seed: int = 0) -> dict[str, Any]:
                     found += 1
                     a = assess(hit, geometry)
                     right += int(a is not None and a.urgency in RIGHT_URGENCY[level_pct])
+    return {
+        "views": views,
+        "recall": round(found / views, 3) if views else None,
+        "urgency_right": round(right / found, 3) if found else None,
+    }
+
+
+THERMAL_LEVELS_PCT = (50, 20, 5)
+MIN_THERMAL_VIEW_PX = 20  # the colour views' 300 pixels at the Lepton's 1/16 pixel count
+
+
+@dataclass(frozen=True)
+class ThermalView:
+    """One view of a buried body by the simulated thermal camera."""
+
+    level_pct: int
+    victim: Victim  # its truth: visibility_pct, warm_visibility_pct, visible centre
+    pose: PoseSample
+    camera: CameraModel
+    temps_c: np.ndarray  # float32 120 x 160, degrees C
+    warm_px: int  # pixels of the body's warmth in the frame
+    range_m: float
+    bearing_rad: float
+
+
+def thermal_views(level_pct: int, seed: int = 0) -> Iterator[ThermalView]:
+    """The thermal burial benchmark's views at one visible share: the colour
+    benchmark's bodies and slabs for that level (the same random draws), from every
+    range and bearing where at least MIN_THERMAL_VIEW_PX warm pixels show."""
+    rng = np.random.default_rng([seed, level_pct])
+    camera = default_thermal_camera()
+    key = 0
+    for k in range(VICTIMS_PER_LEVEL):
+        v = _victim(rng, SLEEVES[k % 2])
+        debris = tuple(bury(rng, v, float(level_pct))) if level_pct < 100 else ()
+        world = World(size_m=(10.0, 8.0), debris=debris, victims=(v,), seed=seed * 100 + k)
+        v = world.victims[0]
+        renderer = ThermalRenderer(world, camera, seed=k)
+        for rng_m in RANGES_M:
+            for bearing in BEARINGS_RAD:
+                n = v.visible_north_m - rng_m * math.cos(bearing)
+                e = v.visible_east_m - rng_m * math.sin(bearing)
+                pose = PoseSample(0.0, 0.0, n, e, -VEHICLE_HEIGHT_M, 0.0, 0.0, bearing)
+                shot = renderer.render(pose, 1.0, frame_key=key)
+                key += 1
+                px = shot.warm_px.get(v.victim_id, 0)
+                if px >= MIN_THERMAL_VIEW_PX:
+                    yield ThermalView(level_pct, v, pose, camera, shot.temps_c, px, rng_m, bearing)
+
+
+def measure_thermal_level(
+    level_pct: int,
+    detect: Callable[[np.ndarray, FrameGeometry], list[Detection]],
+    urgency: Callable[[Detection, FrameGeometry], Urgency | None],
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Recall and urgency of a thermal detector over ``thermal_views(level_pct)``:
+    ``detect(temps_c, geometry)`` gives its detections, ``urgency(detection,
+    geometry)`` the class the pipeline would give the find."""
+    params = GeolocationParams()
+    views = found = right = 0
+    for view in thermal_views(level_pct, seed):
+        views += 1
+        v = view.victim
+        geometry = FrameGeometry.from_pose(view.camera, view.pose, params)
+        hit = None
+        for d in detect(view.temps_c, geometry):
+            try:
+                fix = geolocate(view.camera, view.pose, d.u_px, d.v_px, params)
+            except GeolocationRejected:
+                continue
+            err = min(
+                math.hypot(fix.north_m - v.north_m, fix.east_m - v.east_m),
+                math.hypot(fix.north_m - v.visible_north_m, fix.east_m - v.visible_east_m),
+            )
+            if err < GATE_M:
+                hit = d
+                break
+        if hit is not None:
+            found += 1
+            right += int(urgency(hit, geometry) in RIGHT_URGENCY[level_pct])
     return {
         "views": views,
         "recall": round(found / views, 3) if views else None,

@@ -284,3 +284,13 @@ def test_world_file_errors_for_the_thermal_keys_name_file_and_key(edit: str, mes
     with pytest.raises(WorldError, match=message) as info:
         load_world_text('format = "rescue-sim-world/1"\n' + edit, "w.toml")
     assert "\n" not in str(info.value)
+
+
+def test_the_thermal_burial_benchmark_views_show_the_warm_share_asked_for() -> None:
+    from bench.sim_burial import MIN_THERMAL_VIEW_PX, thermal_views
+
+    view = next(thermal_views(5))
+    assert 4.0 <= view.victim.warm_visibility_pct <= 6.5
+    assert view.warm_px >= MIN_THERMAL_VIEW_PX
+    assert view.temps_c.shape == (120, 160)
+    assert float(view.temps_c.max()) > 30.0  # the part that shows is warm
