@@ -24,9 +24,10 @@ exposed parts:
    a warm imprint where a person lay, and is dropped.
 
 Without a geometry (a photo) sizes are in pixels: a whole lying adult is taken to
-cover ``photo_body_share`` of the frame (``expected_area_px``), the merge gap is
-``photo_merge_gap_share`` of its width, and a find under ``photo_part_max_share`` of
-a whole body is a part.
+cover ``photo_body_share`` of the frame (``expected_area_px``) and the merge gap is
+``photo_merge_gap_share`` of its width; a find's pixels count as the share of that
+body's floor area (a lying adult's silhouette, 0.57 m²) for the part and flatness
+tests. Its largest size is not tested: a photo can be a close-up.
 """
 
 from __future__ import annotations
@@ -36,12 +37,15 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from companion.vision.base import FrameGeometry, VisionError
+from companion.vision.base import DEFAULT_SILHOUETTE_FILL, FrameGeometry, VisionError
 from companion.vision.thermal_params import ThermalDetectorParams
 from companion.vision.thermal_track import ThermalMemory
 from fusion.types import Detection
 
 SOURCE = "thermal"
+# A whole lying adult's silhouette on the floor (1.7 m x 0.45 m, 3/4 of it filled),
+# what a photo's pixel prior stands for.
+BODY_AREA_M2 = 1.7 * 0.45 * DEFAULT_SILHOUETTE_FILL
 
 
 @dataclass(frozen=True)
@@ -207,9 +211,12 @@ class ThermalDetector:
             in_metres = key is not None
         else:
             expected = p.photo_body_share * t.size
-            if area_px >= p.flat_min_area_m2 * expected and spread < p.flat_std_k:
+            like_m2 = area_px / expected * BODY_AREA_M2  # the body prior's floor area
+            if like_m2 < p.min_area_m2:
+                return reject(f"{area_px:.0f} px is smaller than a hand at this prior")
+            if like_m2 >= p.flat_min_area_m2 and spread < p.flat_std_k:
                 return reject(f"large and flat ({area_px:.0f} px, spread {spread:.2f} K)")
-            part = area_px <= p.photo_part_max_share * expected
+            part = like_m2 <= p.part_max_area_m2
             key, in_metres = None, False
         if self.memory.observe(key or (u, v), in_metres, peak - amb, t_mono_s):
             return reject("a warm imprint fading towards ambient")

@@ -29,9 +29,10 @@ class ThermalDetectorParams:
     min_area_m2: float = 0.004
     # Largest warm area one person can cover (a whole body with arms out), m².
     max_area_m2: float = 1.2
-    # A find at most this large is an exposed part alone (a hand, a face, a forearm,
-    # a head and two hands): cue "warm_part".
-    part_max_area_m2: float = 0.08
+    # A find at most this large is an exposed part alone (a hand ~0.015, a face
+    # ~0.03, a forearm ~0.025, a head and two hands ~0.05 m²): cue "warm_part". Under
+    # a tenth of a lying adult's 0.57 m², so a part alone reads CRITICAL.
+    part_max_area_m2: float = 0.055
     # Warm parts this close on the floor are one person (a head and its hands).
     merge_gap_m: float = 0.4
     # Large and flat: at least this large with a temperature spread (standard
@@ -92,7 +93,6 @@ class ThermalDetectorParams:
             "min_floor_share",
             "photo_body_share",
             "photo_merge_gap_share",
-            "photo_part_max_share",
         ):
             if getattr(self, name) > 1.0:
                 raise ValueError(f"{name} = {getattr(self, name)}: a share, must be <= 1")
