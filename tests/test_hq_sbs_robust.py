@@ -4,24 +4,35 @@ The real ``SbsServer`` on 127.0.0.1 with real client sockets. What an operator
 relies on: QGC gets the victims however many file descriptors the HQ holds; the
 feed's thread failing neither ends the feed nor stalls the HQ's main thread, which
 publishes every change (it sends the acknowledgements); and hundreds of tracks
-reach a client whose TCP window is small (a 1500-byte MTU link, a busy QGC) instead
-of it being dropped and reconnecting over and over.
+reach a client on a 1500-byte MTU link instead of it being dropped and reconnecting
+over and over: as root, that one runs the real `rescue-hq` in a network namespace of
+its own whose loopback has that MTU (this file run as a script is that child).
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import resource
+import shutil
 import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from fusion.types import TrackState, Urgency
 from hq import sbs
+from hq.simrobot import SimRobot
 from hq.view import HqVictim
+
+REPO = Path(__file__).resolve().parents[1]
 
 _PUBLISH_LIMIT_S = 5.0  # 1000 publishes take milliseconds; a blocked one never returns
 
@@ -207,3 +218,83 @@ def test_a_client_that_does_not_read_is_dropped_and_said(
             stalled.close()
     dropped = [r.getMessage() for r in caplog.records if "not reading" in r.getMessage()]
     assert len(dropped) == 1 and f"more than {bound}" in dropped[0]
+
+
+_MTU_VICTIMS = 400  # the review's QGC was dropped over and over from about here
+
+
+@pytest.mark.skipif(
+    os.geteuid() != 0 or shutil.which("unshare") is None or shutil.which("ip") is None,
+    reason="needs root, unshare and ip for a network namespace with a 1500-byte MTU",
+)
+def test_four_hundred_victims_reach_qgc_over_a_1500_byte_mtu_link() -> None:
+    done = subprocess.run(
+        ["unshare", "-n", sys.executable, __file__],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["closed_by_server"] is False, result
+    assert result["tracks"] == _MTU_VICTIMS, result
+    assert "Traceback" not in result["hq_stderr"]
+
+
+def _mtu_child() -> None:
+    """In a fresh network namespace: loopback up at MTU 1500, the real rescue-hq with
+    400 confirmed victims from a simulated robot, then a QGC-like client that reads
+    the feed for 5 s. Prints the outcome as one JSON line."""
+    subprocess.run(["ip", "link", "set", "lo", "up", "mtu", "1500"], check=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        err_path = Path(tmp) / "hq.err"
+        with open(err_path, "w") as err:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "hq.cli", "--listen", "udpin:127.0.0.1:0",
+                 "--db", str(Path(tmp) / "hq.sqlite"), "--no-table", "--no-web",
+                 "--duration-s", "60", "--sbs", "127.0.0.1:0",
+                 "--origin", "47.397742,8.545594,488.0"],
+                cwd=REPO, stdout=subprocess.PIPE, stderr=err, text=True,
+            )  # fmt: skip
+        try:
+            assert proc.stdout is not None
+            ports = {}
+            while len(ports) < 2:
+                line = proc.stdout.readline()
+                for key in ("listening on", "SBS-1 feed"):
+                    if key in line:
+                        ports[key] = int(line.rsplit(":", 1)[1])
+            robot_to_hq = ("127.0.0.1", ports["listening on"])
+            with SimRobot(7, robot_to_hq) as robot:
+                for first in range(1, _MTU_VICTIMS + 1, 50):
+                    waiting = set()
+                    for v in range(first, first + 50):
+                        msg = robot.report_msg(robot.victim(v, (v // 30) * 4.0, (v % 30) * 4.0))
+                        robot.send(msg)
+                        waiting.add(msg.report_seq)
+                    deadline = time.monotonic() + 10.0
+                    while waiting and time.monotonic() < deadline:
+                        for rx in robot.receive(0.5):
+                            if rx.msg.get_type() == "RESCUE_ACK":
+                                waiting.discard(rx.msg.seq)
+                    assert not waiting, f"reports not acknowledged: {sorted(waiting)}"
+            time.sleep(1.5)  # the victims published to the feed
+            client = FeedReader(("127.0.0.1", ports["SBS-1 feed"]))
+            try:
+                client.read_for(5.0)
+            finally:
+                client.close()
+        finally:
+            proc.terminate()
+            proc.wait(timeout=15)
+        print(
+            json.dumps(
+                {
+                    "tracks": len(client.lat_deg),
+                    "closed_by_server": client.closed_by_server,
+                    "hq_stderr": err_path.read_text()[-2000:],
+                }
+            )
+        )
+
+
+if __name__ == "__main__":
+    _mtu_child()
