@@ -124,8 +124,9 @@ def test_the_page_state_is_updated_from_what_changed_and_equals_a_full_build(
 
     def updated() -> dict[str, Any]:
         """The page brought up to date from the changes, as the console does."""
-        changes.update(registry, notes, page)
-        page.set_robots(registry.robots(), {}, T_UNIX_S, 5.0)
+        robots = registry.robots()
+        changes.update(registry, notes, page, robots)
+        page.set_robots(robots, {}, T_UNIX_S, 5.0)
         return dict(json.loads(page.json(T_UNIX_S, 5.0)))
 
     def full() -> dict[str, Any]:

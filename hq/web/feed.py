@@ -10,10 +10,10 @@ robots whose link is lost; on a change it updates the page state at most every
 0.2 s (every 1 s when only robots moved) and hands it to ``publish``. With no
 page open nothing is built; a request for the state updates it then.
 
-An update is incremental (``Changes``): each source row's markers (HQ victim,
-report number and time, merge target, when it was stored) are compared with the
-last ones seen, and only the HQ victims whose sources, actions, notes or
-pictures changed are rebuilt (read, fused, made JSON; hq.web.state.Page keeps the
+An update is incremental (``Changes``): the sources touched by reports stored
+since the last update (the reports' AUTOINCREMENT id) are read again, and only
+the HQ victims whose sources (HQ victim, report number, merge target, when
+stored), actions, notes or pictures changed are rebuilt (read, fused, made JSON; hq.web.state.Page keeps the
 rest). ``Hub`` lives in the web server's event loop and holds the latest state
 for the event streams.
 """
@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from hq.merge import Origins
-from hq.records import Action, BadRecord, Source, report_from_payload
+from hq.records import Action, BadRecord, Robot, Source, report_from_payload
 from hq.registry import Registry
 from hq.registry_file import RegistryError
 from hq.registry_rows import cell_float, cell_int
@@ -46,11 +46,12 @@ log = logging.getLogger(__name__)
 _TICK_S = 0.1  # how often the console looks for news in the registry
 _MIN_PUBLISH_S = 0.2  # pages get at most 5 states a second
 _MOVED_PUBLISH_S = 1.0  # and robots' movements alone at most once a second
+_ROBOTS_READ_S = 1.0  # robots' rows (when each was last heard) read for lost links
 T = TypeVar("T")
 Job = Callable[[Registry, Notes], T]
 _Queued = tuple[Callable[[Registry, Notes], Any], "concurrent.futures.Future[Any]"]
 SourceKey = tuple[int, int]  # (robot sysid, robot's victim ID)
-_Marks = tuple[object, ...]  # a source row's hq_id, report_seq and time, merge target, stored
+_Marks = tuple[object, ...]  # a source row's hq_id, report_seq, merge target, when stored
 _FULL_READ = 200  # more changed sources than this: read them all in one query
 _SOURCE_COLUMNS = (
     "robot_sysid, victim_id, hq_id, payload, report_seq, merged_into_id, updated_unix_s"
@@ -139,6 +140,7 @@ class Changes:
     def __init__(self, db: sqlite3.Connection) -> None:
         self._db = db
         self._marks: dict[SourceKey, _Marks] = {}
+        self._report_id: int | None = None  # the newest report row seen
         self._sources: dict[SourceKey, Source] = {}
         self._actions: dict[SourceKey, list[Action]] = {}
         self._notes: dict[int, list[Note]] = {}
@@ -146,9 +148,11 @@ class Changes:
         self._origins: Origins | None = None
         self.victims_built = 0  # HQ victims rebuilt in all (what the incremental saves)
 
-    def update(self, registry: Registry, notes: Notes, page: Page) -> bool:
+    def update(self, registry: Registry, notes: Notes, page: Page, robots: list[Robot]) -> bool:
+        """Bring ``page``'s victims up to date (``robots``: the registry's, just read)."""
         dirty: set[int] = set()  # HQ victims to rebuild
-        origins = registry.origins()
+        per_robot = {r.sysid: r.origin for r in robots if r.origin is not None}
+        origins = Origins(per_robot, registry.default_origin())  # as Registry.origins()
         if origins != self._origins:
             self._origins = origins
             dirty |= {source.hq_id for source in self._sources.values()}
@@ -179,54 +183,52 @@ class Changes:
         return set() if source is None else {source.hq_id}
 
     def _sources_changed(self) -> set[int]:
-        """Read the sources whose markers moved; the HQ victims they left and joined."""
-        marks: dict[SourceKey, _Marks] = {}
-        for robot, victim, *rest in self._db.execute(
-            "SELECT robot_sysid, victim_id, hq_id, report_seq, report_time_usec,"
-            " merged_into_id, updated_unix_s FROM sources"
-        ):
-            marks[(robot, victim)] = tuple(rest)
-        changed = {k for k, m in marks.items() if self._marks.get(k) != m}
-        gone = set(self._marks) - set(marks)
-        self._marks = marks
-        dirty = set()
-        for key in changed | gone:
-            dirty |= self._hq_ids(key)
-            self._sources.pop(key, None)
-        for source in self._read(changed):
-            self._sources[(source.report.robot_sysid, source.report.victim_id)] = source
-            dirty.add(source.hq_id)
-        return dirty
-
-    def _read(self, keys: set[SourceKey]) -> list[Source]:
-        if not keys:
-            return []
-        if len(keys) > _FULL_READ:
+        """Read the sources touched since the last update; the HQ victims they left
+        and joined. A source changes only with a report stored in the same
+        transaction (hq.registry), so the reports' AUTOINCREMENT id says which."""
+        touched: set[SourceKey] | None = None  # None: all (the first update)
+        if self._report_id is not None:
+            rows = self._db.execute(
+                "SELECT id, robot_sysid, victim_id FROM reports WHERE id > ?", (self._report_id,)
+            ).fetchall()
+            touched = {(robot, victim) for _, robot, victim in rows}
+            newest = max((row_id for row_id, _, _ in rows), default=self._report_id)
+        else:
+            newest = self._db.execute("SELECT COALESCE(MAX(id), 0) FROM reports").fetchone()[0]
+        if touched is not None and not touched:
+            return set()
+        if touched is None or len(touched) > _FULL_READ:
             rows = self._db.execute(f"SELECT {_SOURCE_COLUMNS} FROM sources").fetchall()
         else:
             rows = []
-            for robot, victim in keys:
+            for robot, victim in touched:
                 rows += self._db.execute(
                     f"SELECT {_SOURCE_COLUMNS} FROM sources WHERE robot_sysid=? AND victim_id=?",
                     (robot, victim),
                 ).fetchall()
-        out = []
-        for robot, victim, h, payload, seq, merged, updated in rows:
-            if (robot, victim) not in keys:
+        dirty = set()
+        for robot, victim, hq_id, payload, seq, merged, updated in rows:
+            key, marks = (robot, victim), (hq_id, seq, merged, updated)
+            if self._marks.get(key) == marks:
                 continue
+            self._marks[key] = marks
+            dirty |= self._hq_ids(key)  # the HQ victim it was part of
+            self._sources.pop(key, None)
             try:
-                out.append(
-                    Source(
-                        cell_int(h),
-                        report_from_payload(payload),
-                        cell_int(seq),
-                        cell_int(merged),
-                        cell_float(updated),
-                    )
+                source = Source(
+                    cell_int(hq_id),
+                    report_from_payload(payload),
+                    cell_int(seq),
+                    cell_int(merged),
+                    cell_float(updated),
                 )
             except (BadRecord, TypeError, ValueError) as exc:  # the HQ's registry says it once
                 log.debug("console: source robot %s victim %s skipped: %s", robot, victim, exc)
-        return out
+                continue
+            self._sources[key] = source
+            dirty.add(source.hq_id)
+        self._report_id = int(newest)
+        return dirty
 
     def _rebuild(self, dirty: set[int], page: Page, registry: Registry) -> None:
         members = [s for s in self._sources.values() if s.hq_id in dirty]
@@ -312,7 +314,7 @@ class ConsoleDatabase(threading.Thread):
         watched = False
         lost: frozenset[int] = frozenset()
         robots = registry.robots()
-        next_tick = last_publish = 0.0
+        next_tick = last_publish = robots_read = 0.0
         dirty = True
         while not self._halt.is_set():
             try:
@@ -337,7 +339,8 @@ class ConsoleDatabase(threading.Thread):
                 version = self._data_version()
                 if version != db_version:
                     db_version, dirty = version, True
-                    robots = registry.robots()
+                    if now - robots_read >= _ROBOTS_READ_S:  # for lost links only
+                        robots, robots_read = registry.robots(), now
                 moved = self.live.version != live_version
                 now_lost = robots_lost(robots, self.live, time.time(), self.link_timeout_s)
                 if now_lost != lost:
@@ -366,7 +369,7 @@ class ConsoleDatabase(threading.Thread):
             robots_lost(robots, self.live, now, self.link_timeout_s),
         )
         if key != self._built_for:
-            self._changes.update(registry, notes, self._page)
+            self._changes.update(registry, notes, self._page, robots)
             tracks = self.live.tracks(self._page.paths_held())
             self._page.set_robots(robots, tracks, now, self.link_timeout_s)
             self._page.builds += 1

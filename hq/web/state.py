@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from fusion.types import TrackState
-from hq.records import ACK_RESULT_REJECTED, Action, Robot
+from hq.records import ACK_RESULT_REJECTED, Action, Robot, RobotStatus
 from hq.view import HqVictim
 
 CHI2_2DOF_95 = 5.991  # scipy.stats.chi2.ppf(0.95, df=2): the ellipse's scale
@@ -199,13 +199,17 @@ def _victim(
 
 
 def _robot(
-    sysid: int, robot: Robot | None, track: RobotTrack | None, now: float, timeout_s: float
+    sysid: int,
+    robot: Robot | None,
+    status: dict[str, Any] | None,
+    track: RobotTrack | None,
+    now: float,
+    timeout_s: float,
 ) -> dict[str, Any]:
     """A robot's entry without its path (Page adds the path, kept as JSON)."""
     heard = max(
         robot.last_heard_unix_s if robot else 0.0, track.last_heard_unix_s if track else 0.0
     )
-    status = asdict(robot.status) if robot and robot.status else None
     return {
         "sysid": sysid,
         "last_heard_unix_s": heard,
@@ -245,6 +249,7 @@ class Page:
         self._order: list[str] | None = None  # the victims' entries in the operator's order
         self._paths: dict[int, tuple[int, str]] = {}  # sysid -> (path version, path JSON)
         self._robots: list[str] = []
+        self._statuses: dict[int, tuple[RobotStatus, dict[str, Any]]] = {}
         self.builds = 0  # how many times it was brought up to date (the builder counts)
 
     def victim_ids(self) -> set[int]:
@@ -278,9 +283,20 @@ class Page:
                 path = _dumps([[round(n, 2), round(e, 2)] for n, e in track.path])
                 self._paths[sysid] = (track.path_version, path)
             path_json = self._paths.get(sysid, (0, "[]"))[1] if track is not None else "[]"
-            head = _dumps(_robot(sysid, registered.get(sysid), track, now, timeout_s))
+            robot = registered.get(sysid)
+            head = _dumps(_robot(sysid, robot, self._status(robot), track, now, timeout_s))
             entries.append(f'{head[:-1]},"path":{path_json}}}')  # the path spliced in
         self._robots = entries
+
+    def _status(self, robot: Robot | None) -> dict[str, Any] | None:
+        """A robot's last RESCUE_STATUS as JSON values, made again only when it changed."""
+        if robot is None or robot.status is None:
+            return None
+        held = self._statuses.get(robot.sysid)
+        if held is None or held[0] != robot.status:
+            held = (robot.status, asdict(robot.status))
+            self._statuses[robot.sysid] = held
+        return held[1]
 
     def json(self, now_unix_s: float, link_timeout_s: float) -> str:
         """The state as the page gets it (``builds``: how many builds it is the result of)."""
