@@ -190,6 +190,8 @@ def _ms(values: list[float], q: float) -> float | str:
 
 def run() -> dict[str, object]:
     duration_s = float(os.environ.get(DURATION_ENV, "600"))
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    load_before = os.getloadavg()[0]
     victims = _ROBOTS * _VICTIMS_PER_ROBOT
     with tempfile.TemporaryDirectory(prefix="bench-hq-load-") as tmp:
         hq = _Hq(Path(tmp))
@@ -233,6 +235,8 @@ def run() -> dict[str, object]:
     last = [m for t, m in rss if t >= rss[-1][0] - 60.0]
     closed_med, open_med = _ms(latency["closed"], 0.5), _ms(latency["open"], 0.5)
     return {
+        "started": started,
+        "load average (1 min) before / after": f"{load_before:.1f} / {os.getloadavg()[0]:.1f}",
         "victims": victims,
         "reports sent by the robots / acknowledged": f"{fleet.sent} / {fleet.acked}",
         "run (s)": round(duration_s),
