@@ -212,6 +212,14 @@ def test_a_fading_imprint_is_dropped_and_a_person_is_not() -> None:
     assert not any(seen_imprint[60:])  # once it has been seen cooling for seconds
 
 
+def test_finds_under_the_minimum_score_are_dropped() -> None:
+    t = _scene()
+    _ellipse(t, (60, 90), (0.12, 0.08), 27.0)  # 9 K over ambient: a low score
+    (find,) = ThermalDetector().analyse(t, _geometry(), 0.0).finds
+    strict = ThermalDetector(min_score=find.detection.score + 0.01).analyse(t, _geometry(), 0.0)
+    assert strict.finds == [] and "min_score" in strict.rejected[0].reason
+
+
 def test_a_photo_gets_the_pixel_size_prior() -> None:
     t = _scene()
     _lying_person(t)

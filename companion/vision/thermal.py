@@ -221,6 +221,8 @@ class ThermalDetector:
         if self.memory.observe(key or (u, v), in_metres, peak - amb, t_mono_s):
             return reject("a warm imprint fading towards ambient")
         score = _score(peak, amb, p)
+        if score < self.min_score:
+            return reject(f"score {score:.2f} under min_score {self.min_score:.2f}")
         cues = ("warm", "warm_part") if part else ("warm",)
         det = Detection(
             t_mono_s=t_mono_s,

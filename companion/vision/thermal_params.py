@@ -44,11 +44,9 @@ class ThermalDetectorParams:
     # horizon, in range): a lying person is on it, a warm pipe on a wall is not.
     min_floor_share: float = 0.5
     # Photos (no geometry): a whole lying adult is taken to cover this share of the
-    # frame (a Lepton's 57° at about 3 m), the merge gap is this share of its width,
-    # and a find under part_max_share of the whole body is a part alone.
+    # frame (a Lepton's 57° at about 3 m), and the merge gap is this share of its width.
     photo_body_share: float = 0.06
     photo_merge_gap_share: float = 0.06
-    photo_part_max_share: float = 0.1
     # Warm clusters smaller than this are sensor noise, not evidence.
     min_blob_px: int = 3
     # Over frames: a find whose excess over ambient falls at least fade_k_per_s,
