@@ -331,3 +331,22 @@ def test_thermal_pictures_that_are_not_temperatures_are_named(tmp_path: Path) ->
     assert sum("a_zeros.png" in ln and "centi-kelvin" in ln for ln in complaints) == 1
     assert sum("c_cut.jpg" in ln for ln in complaints) == 1
     assert "Traceback" not in done.stderr
+
+
+def test_with_a_thermal_camera_configured_finds_have_a_floor_area(tmp_path: Path) -> None:
+    config = tmp_path / "rover.toml"
+    config.write_text("[thermal]\n")  # a Lepton 3.5 on the default mount, 0.3 m up
+    frame = tmp_path / "1764000000000000.png"
+    temps = 18.0 + np.random.default_rng(6).normal(0.0, 0.05, (120, 160))
+    temps[76:86, 70:82] = 32.0  # a hand about 1 m ahead, on the floor
+    _centikelvin_png(frame, temps)
+    done = _detect("--json", "--config", config, frame)
+    assert done.returncode == 0, done.stderr
+    (doc,) = _json_lines(done.stdout)
+    dets = doc["detections"]
+    assert isinstance(dets, list) and len(dets) == 1
+    (hand,) = dets
+    assert hand["box"] == [70, 76, 12, 10] and hand["cues"] == ["warm", "warm_part"]
+    assert 0.004 < hand["area_m2"] < 0.055 and hand["urgency"] == "CRITICAL"
+    alone = _detect("--json", frame)
+    assert all(d["area_m2"] is None for d in _json_lines(alone.stdout)[0]["detections"])  # type: ignore[union-attr]
