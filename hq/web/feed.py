@@ -175,7 +175,7 @@ class Changes:
                 dirty |= self._hq_ids(key)
         self._pictures = pictures
         if dirty:
-            self._rebuild(dirty, page, registry)
+            self._rebuild(dirty, page)
         return bool(dirty)
 
     def _hq_ids(self, key: SourceKey) -> set[int]:
@@ -230,7 +230,7 @@ class Changes:
         self._report_id = int(newest)
         return dirty
 
-    def _rebuild(self, dirty: set[int], page: Page, registry: Registry) -> None:
+    def _rebuild(self, dirty: set[int], page: Page) -> None:
         members = [s for s in self._sources.values() if s.hq_id in dirty]
         keys = {(s.report.robot_sysid, s.report.victim_id) for s in members}
         actions = [a for k in keys for a in self._actions.get(k, [])]
@@ -270,6 +270,7 @@ class ConsoleDatabase(threading.Thread):
         self.opened = threading.Event()
         self.open_error: str | None = None
         self.watchers = 0  # open event streams; set by the web server's event loop
+        self.wanted = threading.Event()  # set when a page opens and no current state is held
         self._page = Page()
         self._changes: Changes | None = None
         self._read: sqlite3.Connection | None = None
@@ -311,7 +312,6 @@ class ConsoleDatabase(threading.Thread):
 
     def _loop(self, registry: Registry, notes: Notes) -> None:
         db_version = live_version = -1
-        watched = False
         lost: frozenset[int] = frozenset()
         robots = registry.robots()
         next_tick = last_publish = robots_read = 0.0
@@ -331,11 +331,11 @@ class ConsoleDatabase(threading.Thread):
             now = time.monotonic()
             next_tick = now + _TICK_S
             if self.watchers <= 0:  # no page open: nothing to build
-                watched = False
                 continue
             try:
-                if not watched:  # a first page: it gets the state now
-                    watched, dirty, last_publish = True, True, 0.0
+                if self.wanted.is_set():  # a page waits for a state: it gets one now
+                    self.wanted.clear()
+                    dirty, last_publish = True, 0.0
                 version = self._data_version()
                 if version != db_version:
                     db_version, dirty = version, True

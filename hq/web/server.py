@@ -280,6 +280,8 @@ class Console:
                     yield ": keepalive\n\n"
 
         self._db.watchers = limits.streams
+        if not hub.data:  # none kept while no page watched: the database thread builds one
+            self._db.wanted.set()
 
         def closed() -> None:
             limits.close_stream()
