@@ -142,6 +142,9 @@ def test_the_state_is_built_only_for_a_watcher_and_once_per_change(tmp_path: Pat
             assert _next_state(stream)["builds"] == 3
             with pytest.raises(TimeoutError):  # nothing changes: nothing is built or sent
                 _next_state(stream)
+        # the page reloads: at once the state it had, with nothing built again
+        with urllib.request.urlopen(hq.url + "api/events", timeout=1.5) as stream:
+            assert _next_state(stream)["builds"] == 3
     finally:
         mission.close()
         assert hq.stop() == 0, "".join(hq.stderr)
