@@ -212,6 +212,30 @@ def test_a_fading_imprint_is_dropped_and_a_person_is_not() -> None:
     assert not any(seen_imprint[60:])  # once it has been seen cooling for seconds
 
 
+def _receding_geometry(mpp: float) -> FrameGeometry:
+    """A floor seen at ``mpp`` metres a pixel; pixel (80, 80) is always at (2, 0) m."""
+
+    def floor(px: np.ndarray) -> np.ndarray:
+        return (px[:, ::-1] - 80.0) * mpp + np.array([2.0, 0.0])
+
+    return FrameGeometry(lambda _u, _v: mpp, lambda _u, _v: 0.57 / mpp**2, floor)
+
+
+def test_a_person_the_rover_drives_away_from_is_not_taken_for_a_cooling_imprint() -> None:
+    detector = ThermalDetector()
+    for i in range(120):
+        t_s = i / 8.7
+        mpp = 0.01 * 1.012**i  # 1 cm a pixel to 4 cm: 1 m away, then about 3 m
+        t = _scene(seed=i)
+        # the same torso, fewer pixels and reading cooler (blended) as the range grows
+        axes = (max(2, round(0.25 / mpp)), max(2, round(0.15 / mpp)))
+        mask = np.zeros(t.shape, np.uint8)
+        cv2.ellipse(mask, (80, 80), axes, 0, 0, 360, 1, -1)
+        t[mask > 0] = 33.0 - 0.4 * t_s
+        finds = detector.analyse(t, _receding_geometry(mpp), t_s).finds
+        assert len(finds) == 1, (i, detector.analyse(t, _receding_geometry(mpp), t_s + 1e-3))
+
+
 def test_finds_under_the_minimum_score_are_dropped() -> None:
     t = _scene()
     _ellipse(t, (60, 90), (0.12, 0.08), 27.0)  # 9 K over ambient: a low score

@@ -20,8 +20,8 @@ exposed parts:
    Large and flat (over ``flat_min_area_m2`` with a spread under ``flat_std_k``) is a
    heated surface. Less than ``min_floor_share`` of it on the floor (rays above the
    horizon or out of range) is above the floor, where a lying person cannot be.
-4. Over frames (``thermal_track``): a find whose excess over ambient keeps falling is
-   a warm imprint where a person lay, and is dropped.
+4. Over frames (``thermal_track``): a find whose excess over ambient keeps falling,
+   seen at the same scale, is a warm imprint where a person lay, and is dropped.
 
 Without a geometry (a photo) sizes are in pixels: a whole lying adult is taken to
 cover ``photo_body_share`` of the frame (``expected_area_px``) and the merge gap is
@@ -218,7 +218,8 @@ class ThermalDetector:
                 return reject(f"large and flat ({area_px:.0f} px, spread {spread:.2f} K)")
             part = like_m2 <= p.part_max_area_m2
             key, in_metres = None, False
-        if self.memory.observe(key or (u, v), in_metres, peak - amb, t_mono_s):
+        scale = (geometry.metres_per_px(u, v) if geometry is not None else None) or 1.0
+        if self.memory.observe(key or (u, v), in_metres, peak - amb, t_mono_s, scale):
             return reject("a warm imprint fading towards ambient")
         score = _score(peak, amb, p)
         if score < self.min_score:

@@ -55,6 +55,9 @@ class ThermalDetectorParams:
     fade_k_per_s: float = 0.03
     fade_min_span_s: float = 4.0
     fade_window_s: float = 20.0
+    # ... comparing only views whose metres per pixel differ by at most this share
+    # (a person's parts read cooler from farther: fewer pixels, blended with the floor).
+    fade_scale_tolerance: float = 0.25
     # A find is the same warm thing as one remembered within this distance
     # (floor metres with a geometry, pixels in a photo), forgotten after forget_s.
     track_radius_m: float = 0.4
