@@ -256,37 +256,46 @@ class Solids:
         """
         k = self.camera.intrinsics
         f_px = max(k.fx_px, k.fy_px)
+        counts = np.array([len(a) for a, _, _, _ in anchors])
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        radii = np.repeat(np.array([r for _, r, _, _ in anchors], float), counts)
         points = np.vstack([a for a, _, _, _ in anchors])
         rel = (points - cam_centre) @ r_nc  # camera frame
         safe = rel.copy()
         safe[:, 2] = np.maximum(safe[:, 2], 1e-3)
         uv = self.camera.project_camera(safe)
+        z = rel[:, 2]
+        # The image of a sphere at distance dist, depth z: within f r dist / (z (z - r)).
+        dist = np.sqrt((rel * rel).sum(axis=1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r_px = _CULL_MARGIN * f_px * radii * dist / (z * (z - radii)) + 2.0
+        # Per item (numpy's reduceat over each item's anchors): rectangle and nearness.
+        x0s = np.minimum.reduceat(uv[:, 0] - r_px, starts)
+        x1s = np.maximum.reduceat(uv[:, 0] + r_px, starts)
+        y0s = np.minimum.reduceat(uv[:, 1] - r_px, starts)
+        y1s = np.maximum.reduceat(uv[:, 1] + r_px, starts)
+        beside = np.logical_or.reduceat(z < radii + 0.02, starts)
+        centres = np.array([c for _, _, c, _ in anchors], float)
+        bounds = np.array([bd for _, _, _, bd in anchors], float)
+        behind = (centres - cam_centre) @ r_nc[:, 2] < -bounds
         out: list[tuple[int, int, int, int] | None] = []
-        i = 0
-        for pts, radius, centre, bound in anchors:
-            n = len(pts)
-            z = rel[i : i + n, 2]
-            if float(((centre - cam_centre) @ r_nc)[2]) < -bound:
+        for j, (_pts, radius, centre, bound) in enumerate(anchors):
+            if behind[j]:
                 out.append(None)  # behind the camera
-            elif (z < radius + 0.02).any():  # beside the camera
+            elif beside[j]:  # beside the camera
                 full = (0, 0, k.width_px, k.height_px)
                 out.append(_cone_rect(rays, centre - cam_centre, bound, full))
             else:
-                # The image of a sphere at distance dist, depth z: within f r dist / (z (z - r)).
-                dist = np.linalg.norm(rel[i : i + n], axis=1)
-                r_px = _CULL_MARGIN * f_px * radius * dist / (z * (z - radius)) + 2.0
-                u, v = uv[i : i + n, 0], uv[i : i + n, 1]
-                x0 = max(int((u - r_px).min()), 0)
-                x1 = min(int((u + r_px).max()) + 1, k.width_px)
-                y0 = max(int((v - r_px).min()), 0)
-                y1 = min(int((v + r_px).max()) + 1, k.height_px)
+                x0 = max(int(x0s[j]), 0)
+                x1 = min(int(x1s[j]) + 1, k.width_px)
+                y0 = max(int(y0s[j]), 0)
+                y1 = min(int(y1s[j]) + 1, k.height_px)
                 if x0 >= x1 or y0 >= y1:
                     out.append(None)
                 elif radius > 0:  # tighten a round solid's rectangle by its cone
                     out.append(_cone_rect(rays, centre - cam_centre, bound, (x0, y0, x1, y1)))
                 else:
                     out.append((x0, y0, x1, y1))
-            i += n
         return out
 
     def trace(self, depth_m: np.ndarray, cam_centre: F, r_nc: F, rays: F) -> Hits:
