@@ -13,9 +13,9 @@ page open nothing is built; a request for the state updates it then.
 An update is incremental (``Changes``): the sources touched by reports stored
 since the last update (the reports' AUTOINCREMENT id) are read again, and only
 the HQ victims whose sources (HQ victim, report number, merge target, when
-stored), actions, notes or pictures changed are rebuilt (read, fused, made JSON; hq.web.state.Page keeps the
-rest). ``Hub`` lives in the web server's event loop and holds the latest state
-for the event streams.
+stored), actions, notes or pictures changed are rebuilt (read, fused, made
+JSON; hq.web.state.Page keeps the rest). ``Hub`` lives in the web server's event
+loop and holds the latest state for the event streams.
 """
 
 from __future__ import annotations
@@ -133,8 +133,7 @@ class Hub:
 class Changes:
     """What the page shows, kept between updates, and which HQ victims changed since.
 
-    The console thread's own read connection; ``update`` brings a Page up to date
-    and says whether anything it shows changed.
+    The console thread's own read connection; ``update`` brings a Page up to date.
     """
 
     def __init__(self, db: sqlite3.Connection) -> None:
@@ -146,11 +145,13 @@ class Changes:
         self._notes: dict[int, list[Note]] = {}
         self._pictures: dict[SourceKey, tuple[int, float]] = {}
         self._origins: Origins | None = None
+        self._dirty: set[int] = set()  # found changed, not yet rebuilt
         self.victims_built = 0  # HQ victims rebuilt in all (what the incremental saves)
 
-    def update(self, registry: Registry, notes: Notes, page: Page, robots: list[Robot]) -> bool:
-        """Bring ``page``'s victims up to date (``robots``: the registry's, just read)."""
-        dirty: set[int] = set()  # HQ victims to rebuild
+    def update(self, registry: Registry, notes: Notes, page: Page, robots: list[Robot]) -> None:
+        """Bring ``page``'s victims up to date (``robots``: the registry's, just read).
+        A read that fails (busy) leaves what it found to rebuild for the next update."""
+        dirty = self._dirty  # HQ victims to rebuild
         per_robot = {r.sysid: r.origin for r in robots if r.origin is not None}
         origins = Origins(per_robot, registry.default_origin())  # as Registry.origins()
         if origins != self._origins:
@@ -176,7 +177,7 @@ class Changes:
         self._pictures = pictures
         if dirty:
             self._rebuild(dirty, page)
-        return bool(dirty)
+            dirty.clear()
 
     def _hq_ids(self, key: SourceKey) -> set[int]:
         source = self._sources.get(key)
@@ -206,7 +207,7 @@ class Changes:
                     f"SELECT {_SOURCE_COLUMNS} FROM sources WHERE robot_sysid=? AND victim_id=?",
                     (robot, victim),
                 ).fetchall()
-        dirty = set()
+        dirty = self._dirty  # kept if a later read of this update fails
         for robot, victim, hq_id, payload, seq, merged, updated in rows:
             key, marks = (robot, victim), (hq_id, seq, merged, updated)
             if self._marks.get(key) == marks:
