@@ -1,9 +1,13 @@
 """Accuracy over the scenario suite: recall, false victims, localisation, urgency, duplicates
 
-Each scenario (the seven presets of ``scenarios`` and the generated mixed worlds of
-seeds 1 and 2) is recorded with ``scenarios.record.record`` (fixed world seed and
-start time, the whole lawnmower route as the rover drives it, around tall debris,
-piles on people and the people themselves (``scenarios.pathplan``), 5 frames/s at
+Each scenario (the presets of ``scenarios``: the seven of the first prototype and,
+since issue 41, four for the thermal camera: ``thermal_dark`` (``mixed`` with the
+lights out), ``thermal_covered`` (two victims under a blanket and dust, warmth
+showing), ``thermal_warm_things`` and ``thermal_warm_things2`` (no person, warm
+things that are not people); and the generated mixed worlds of seeds 1 and 2) is
+recorded with ``scenarios.record.record`` (the thermal camera's frames beside the
+colour ones, fixed world seed and start time, the whole lawnmower route as the
+rover drives it, around tall debris, piles on people and the people themselves (``scenarios.pathplan``), 5 frames/s at
 640x480), replayed (in one
 worker process per CPU, each scenario whole) through ``companion.replay.replay`` with the recorded camera.toml as the whole
 configuration (every other key at its default), and scored with
