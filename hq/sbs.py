@@ -70,6 +70,7 @@ _URGENCY_LABEL = {Urgency.CRITICAL: "CRIT", Urgency.MEDIUM: "MED", Urgency.LIGHT
 MAX_CLIENT_BUFFER_BYTES = 16 * 1024 * 1024  # ~80 refreshes of 1000 tracks: a client not reading
 _SEND_CHUNK_BYTES = 256 * 1024  # at most this much per send() call
 _RESTART_DELAY_S = 1.0  # after a failure of the thread, serve again this much later
+_FAILURE_REPEAT_S = 60.0  # the same failure again is logged at most this often
 _ACCEPT_PAUSE_S = 1.0  # accept() failing (no file descriptors left): try again this much later
 
 
@@ -173,6 +174,7 @@ class SbsServer:
         self._selector: selectors.BaseSelector | None = None
         self._failures = 0
         self._last_failure = ""
+        self._failure_said_mono_s = 0.0  # when a failure was last logged (a loop stays readable)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hq-sbs", daemon=True)
         self._thread.start()
@@ -244,15 +246,19 @@ class SbsServer:
                 self._stop.wait(_RESTART_DELAY_S)
 
     def _failed(self, exc: Exception) -> None:
+        text = f"{type(exc).__name__}: {exc}"
+        now = time.monotonic()
         with self._lock:
             self._failures += 1
-            self._last_failure = f"{type(exc).__name__}: {exc}"
-            first = self._failures == 1
+            first, same = self._failures == 1, text == self._last_failure
+            self._last_failure = text
             clients, self._clients = list(self._clients.values()), {}
         if first:
             log.exception("SBS-1 feed thread failed; its clients are closed and it serves again")
-        else:
-            log.error("SBS-1 feed thread failed again (%d times): %s", self._failures, exc)
+            self._failure_said_mono_s = now
+        elif not same or now - self._failure_said_mono_s >= _FAILURE_REPEAT_S:
+            log.error("SBS-1 feed thread failed again (%d times in all): %s", self._failures, text)
+            self._failure_said_mono_s = now
         for c in clients:
             c.sock.close()
         if self._selector is not None:
