@@ -174,6 +174,7 @@ class SbsServer:
         self._selector: selectors.BaseSelector | None = None
         self._failures = 0
         self._last_failure = ""
+        self._accept_failing = False  # said once, until a client is accepted again
         self._failure_said_mono_s = 0.0  # when a failure was last logged (a loop stays readable)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hq-sbs", daemon=True)
@@ -316,8 +317,17 @@ class SbsServer:
         except BlockingIOError:
             return True
         except OSError as exc:
-            log.warning("SBS-1 feed cannot accept a client: %s", exc)
+            if not self._accept_failing:
+                log.warning(
+                    "SBS-1 feed cannot accept a client: %s; trying again every %.0f s",
+                    exc,
+                    _ACCEPT_PAUSE_S,
+                )
+            self._accept_failing = True
             return False
+        if self._accept_failing:
+            log.warning("SBS-1 feed accepts clients again")
+            self._accept_failing = False
         sock.setblocking(False)
         client = _Client(sock, f"{peer[0]}:{peer[1]}")
         log.info("SBS-1 client %s connected", client.peer)

@@ -47,11 +47,9 @@ def _victim(hq_id: int, lat_deg: float = 47.0) -> HqVictim:
 class FeedReader:
     """Reads an SBS-1 feed; keeps the last MSG,3 latitude of each address."""
 
-    def __init__(self, address: tuple[str, int], *, rcvbuf_bytes: int | None = None) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        if rcvbuf_bytes is not None:  # before connect: the window the server sees
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf_bytes)
-        self.sock.connect(address)
+    def __init__(self, to: tuple[str, int] | socket.socket) -> None:
+        """``to``: the feed's address, or a socket already connected to it."""
+        self.sock = to if isinstance(to, socket.socket) else socket.create_connection(to)
         self.sock.settimeout(0.1)
         self.lat_deg: dict[str, float] = {}
         self.closed_by_server = False
@@ -132,6 +130,64 @@ def test_a_client_above_descriptor_1023_gets_the_feed(
         assert client.lat_deg["F00001"] == pytest.approx(last, abs=1e-7)
     finally:
         client.close()
+
+
+class ThreadCpu:
+    """CPU time (user + system) of one thread of this process, from /proc; the file is
+    opened once, so it can be read when no descriptor is left."""
+
+    def __init__(self, thread: threading.Thread) -> None:
+        self._fd = os.open(f"/proc/self/task/{thread.native_id}/stat", os.O_RDONLY)
+
+    def seconds(self) -> float:
+        fields = os.pread(self._fd, 4096, 0).decode().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def close(self) -> None:
+        os.close(self._fd)
+
+
+def test_no_descriptor_left_is_said_once_without_spinning_and_the_client_served_after(
+    server: sbs.SbsServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="hq.sbs")
+    server.publish([_victim(1)])
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    client = socket.socket(socket.AF_INET, socket.SOCK_STREAM)  # its descriptor, before none left
+    cpu = ThreadCpu(server._thread)
+    fillers: list[socket.socket] = []
+    resource.setrlimit(resource.RLIMIT_NOFILE, (len(os.listdir("/proc/self/fd")) + 16, hard))
+    try:
+        try:
+            while True:
+                fillers.append(socket.socket())
+        except OSError:
+            pass  # no descriptor left in this process, the feed's included
+        client.connect(server.address)  # queued by the kernel; accept() fails: EMFILE
+        cpu_before = cpu.seconds()
+        time.sleep(2.0)
+        spent_s = cpu.seconds() - cpu_before
+    finally:
+        for s in fillers:
+            s.close()
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    try:
+        assert spent_s < 0.2, f"the feed's thread used {spent_s:.2f} s of CPU in 2 s"
+        reader = FeedReader.__new__(FeedReader)  # the client connected above
+        reader.sock, reader.lat_deg, reader.closed_by_server, reader._buffer = (
+            client,
+            {},
+            False,
+            b"",
+        )
+        client.settimeout(0.1)
+        reader.read_for(3.0, lambda: "F00001" in reader.lat_deg)
+        assert "F00001" in reader.lat_deg
+    finally:
+        client.close()
+    said = [r.getMessage() for r in caplog.records if "cannot accept" in r.getMessage()]
+    assert len(said) == 1 and "Too many open files" in said[0]
+    assert "accepts clients again" in caplog.text
 
 
 def test_a_failure_of_the_feed_thread_is_said_once_and_the_feed_goes_on(
