@@ -40,6 +40,7 @@ HOLD_S = 10.0
 # goes bad, when it is fine again. Severity 5 (NOTICE) or more urgent: QGC speaks it.
 CONDITION_WORDS = {
     "camera": (("camera lost", 3), ("camera back", 5)),
+    "thermal camera": (("thermal camera lost", 3), ("thermal camera back", 5)),
     "hq": (("HQ link lost", 4), ("HQ link back", 5)),
     "disk": (("disk full", 4), ("disk space free again", 5)),
 }

@@ -1,8 +1,11 @@
-"""The camera thread: frames into the processing thread's one-slot mailbox (a newer
-frame replaces an unprocessed one; the drop is counted), each also recorded for
-replay with ``[paths] record_frames``, and the camera's health: ``camera_ok`` (set
-while frames come or the source says it is healthy; the vehicle link's HEARTBEAT
-and RESCUE_STATUS read it) and "camera lost" / "camera back", announced once each.
+"""The camera threads: frames into the processing thread's mailbox (one slot per
+camera; a newer frame replaces an unprocessed one and the drop is counted), each
+also recorded for replay with ``[paths] record_frames``, and each camera's health:
+``camera_ok`` (set while frames come or the source says it is healthy; the vehicle
+link's HEARTBEAT and RESCUE_STATUS read it) and "camera lost" / "camera back",
+announced once each. The thermal camera, when there is one, has its own thread,
+slot, health ("thermal camera lost" / "back") and recording folder; nothing it does
+stops the colour camera's.
 """
 
 from __future__ import annotations
@@ -10,7 +13,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Generic, Protocol, TypeVar
 
 from companion.announcements import Announcer
 from companion.config import Config
@@ -19,21 +24,24 @@ from companion.sources import (
     CameraTimeout,
     EndOfStream,
     Frame,
-    write_frame,
 )
-from companion.sources.reopen import ReopeningSource
+from companion.sources.thermal import ThermalFrame
 
 log = logging.getLogger(__name__)
 
 
 class FrameMailbox:
-    """One frame slot between the camera and processing threads."""
+    """The slots between the camera threads and the processing thread: one for the
+    colour camera, one for the thermal camera."""
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._frame: Frame | None = None
+        self._thermal: ThermalFrame | None = None
         self.received = 0
         self.dropped = 0
+        self.thermal_received = 0
+        self.thermal_dropped = 0
 
     def put(self, frame: Frame) -> None:
         with self._cond:
@@ -43,23 +51,38 @@ class FrameMailbox:
             self.received += 1
             self._cond.notify()
 
-    def get(self, timeout_s: float) -> Frame:
-        """The newest frame; CameraTimeout when none arrives in time."""
+    def put_thermal(self, frame: ThermalFrame) -> None:
         with self._cond:
-            if self._frame is None and not self._cond.wait_for(
-                lambda: self._frame is not None, timeout_s
+            if self._thermal is not None:
+                self.thermal_dropped += 1
+            self._thermal = frame
+            self.thermal_received += 1
+            self._cond.notify()
+
+    def get(self, timeout_s: float) -> Frame | ThermalFrame:
+        """The waiting frame captured first (colour or thermal); CameraTimeout when
+        none arrives in time."""
+        with self._cond:
+            if not self._cond.wait_for(
+                lambda: self._frame is not None or self._thermal is not None, timeout_s
             ):
                 raise CameraTimeout(f"no frame within {timeout_s} s")
-            frame, self._frame = self._frame, None
-            assert frame is not None  # wait_for guarantees it
-            return frame
+            colour, thermal = self._frame, self._thermal
+            if thermal is None or (colour is not None and colour.t_mono_s <= thermal.t_mono_s):
+                self._frame = None
+                assert colour is not None  # wait_for guarantees one of them
+                return colour
+            self._thermal = None
+            return thermal
 
 
-def recording_dir(config: Config) -> Path | None:
-    """Where this run's frames are recorded, created; None when not recording."""
+def recording_dir(config: Config, kind: str) -> Path | None:
+    """Where this run's frames of one camera are recorded (``kind``: "frames" for the
+    colour camera, "thermal" for the thermal one, as ``rescue-sim record`` lays out a
+    mission), created; None when not recording."""
     if not config.paths.record_frames:
         return None
-    frames_dir = config.paths.state_dir / "frames" / time.strftime("%Y%m%d-%H%M%S")
+    frames_dir = config.paths.state_dir / kind / time.strftime("%Y%m%d-%H%M%S")
     try:
         frames_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -68,23 +91,46 @@ def recording_dir(config: Config) -> Path | None:
     return frames_dir
 
 
-class Capture:
+F = TypeVar("F", bound=Frame | ThermalFrame)
+F_co = TypeVar("F_co", bound=Frame | ThermalFrame, covariant=True)
+
+
+class Camera(Protocol[F_co]):
+    """A camera behind reopening (companion.sources.reopen): read, health, close."""
+
+    name: str
+
+    @property
+    def healthy(self) -> bool: ...
+
+    def read(self, timeout_s: float) -> F_co: ...
+
+    def close(self) -> None: ...
+
+
+class Capture(Generic[F]):
+    """One camera's thread: read, hand over, record, say how the camera is."""
+
     def __init__(
         self,
         *,
-        camera: ReopeningSource,
-        mailbox: FrameMailbox,
+        camera: Camera[F],
+        put: Callable[[F], None],
+        record: Callable[[Path, F], object],
         frames_dir: Path | None,
         camera_ok: threading.Event,
         announcer: Announcer,
         stop: threading.Event,
+        condition: str = "camera",
     ) -> None:
-        self.camera = camera
-        self._mailbox = mailbox
+        self.camera: Camera[F] = camera
+        self._put: Callable[[F], None] = put
+        self._write: Callable[[Path, F], object] = record
         self.frames_dir = frames_dir
         self._camera_ok = camera_ok
         self._announcer = announcer
         self._stop = stop
+        self._condition = condition
 
     def run(self) -> None:
         while not self._stop.is_set():
@@ -93,30 +139,30 @@ class Capture:
             except CameraTimeout:
                 frame = None
             except EndOfStream as exc:
-                log.info("camera: %s", exc)
+                log.info("%s: %s", self._condition, exc)
                 self._camera_ok.clear()
-                self._announcer.announce("camera stream ended", 4)
+                self._announcer.announce(f"{self._condition} stream ended", 4)
                 self._stop.wait()
                 return
             except CameraError as exc:
-                log.debug("camera: %s", exc)
+                log.debug("%s: %s", self._condition, exc)
                 frame = None
             ok = frame is not None or self.camera.healthy
-            self._announcer.condition("camera", ok, time.monotonic())
+            self._announcer.condition(self._condition, ok, time.monotonic())
             if ok:
                 self._camera_ok.set()
             else:
                 self._camera_ok.clear()
             if frame is not None:
-                self._mailbox.put(frame)
+                self._put(frame)
                 self._record(frame)
 
-    def _record(self, frame: Frame) -> None:
+    def _record(self, frame: F) -> None:
         """Save the frame for replay; a full disk stops the recording, not the camera."""
         if self.frames_dir is None:
             return
         try:
-            write_frame(self.frames_dir, frame)
+            self._write(self.frames_dir, frame)
         except CameraError as exc:
-            log.warning("frame recording stopped: %s", exc)
+            log.warning("%s recording stopped: %s", self._condition, exc)
             self.frames_dir = None

@@ -30,6 +30,7 @@ from companion.pictures import Candidate, PictureChooser
 from companion.pipeline import FrameOutcome, Pipeline, PipelineCounters
 from companion.sdnotify import Notifier, watchdog_period_s
 from companion.sources import CameraTimeout, Frame
+from companion.sources.thermal import ThermalFrame
 from companion.video import Label, labels_in_view, shot
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io.vehicle import VehicleLink
@@ -131,7 +132,13 @@ class Processing:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
             except CameraTimeout:
                 frame = None
-            if frame is not None:
+            if isinstance(frame, ThermalFrame):
+                outcome = self._pipeline.process_thermal(frame, self._vehicle.poses)
+                self._count_victims()
+                if outcome.decisions or (outcome.events and time.monotonic() - last_save > 0.5):
+                    self._ledger.commit(outcome.decisions)
+                    last_save = time.monotonic()
+            elif frame is not None:
                 outcome = self._pipeline.process(frame, self._vehicle.poses)
                 self._after_frame(outcome)
                 self._offer_video(frame, outcome)

@@ -1,8 +1,12 @@
 """``rescue-companion replay``: the live pipeline, offline, on a recorded mission.
 
 Inputs: a tlog of what the autopilot sent (8-byte big-endian Unix microseconds before
-each packet) and a folder of frames named ``<unix_time_microseconds>.jpg|png`` on
-the same clock. Poses are decoded exactly as live (the tlog time plays the part of
+each packet), a folder of frames named ``<unix_time_microseconds>.jpg|png`` on
+the same clock and, optionally, a folder of thermal frames named
+``<unix_time_microseconds>.png`` (16-bit, centi-kelvin) on that clock too, which
+needs the config's ``[thermal]`` section for the thermal camera's geometry. Colour
+and thermal frames are processed together in capture-time order, as the service's
+mailbox hands them over. Poses are decoded exactly as live (the tlog time plays the part of
 the arrival time), frames are processed in time order once the telemetry has run
 ``LOOKAHEAD_S`` past them (so the pose after the frame is known for interpolation),
 and the result is deterministic: no wall clock, no threads.
@@ -12,6 +16,7 @@ Output: a JSON document (docs/REPLAY.md) and a mission map PNG beside it.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import sys
@@ -23,12 +28,15 @@ from typing import Any
 from companion.calibration import camera_model
 from companion.config import Config
 from companion.missionmap import MapVictim, draw_mission_map
-from companion.pipeline import Pipeline
+from companion.pipeline import FrameOutcome, Pipeline, ThermalEye
 from companion.reporting import ReportPolicy
-from companion.sources import EndOfStream, Frame
+from companion.sources import CameraError, EndOfStream, Frame
 from companion.sources.folder import FramesDirSource
 from companion.sources.size import SizedSource
+from companion.sources.thermal import ThermalFrame
+from companion.sources.thermal_folder import ThermalFramesDir
 from companion.vision import make_detector
+from companion.vision.thermal import ThermalDetector
 from fusion.pose import PoseHistory
 from fusion.registry import Victim
 from fusion.tracker import VictimTracker
@@ -65,6 +73,8 @@ class ReplayResult:
     frames: int = 0
     frames_skipped: int = 0  # unreadable or truncated image files
     frames_without_pose: int = 0
+    thermal_frames: int = 0
+    thermal_frames_skipped: int = 0  # unreadable files, and frames that were no evidence
     poses: int = 0
     reboots: int = 0
     first_reported_unix_s: dict[int, float] = field(default_factory=dict)
@@ -164,13 +174,46 @@ def prepare_output(out: Path) -> Path:
     return path
 
 
-def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
+class _Thermal:
+    """The thermal frames of a replay, on the colour frames' monotonic clock."""
+
+    def __init__(self, config: Config, folder: Path, mono_minus_unix_s: float) -> None:
+        if config.thermal is None:
+            raise CameraError(
+                f"--thermal-frames {folder}: the config has no [thermal] section, so the "
+                "thermal camera's size, field of view and mount are unknown"
+            )
+        self.source = ThermalFramesDir(folder, config.thermal.width_px, config.thermal.height_px)
+        self.eye = ThermalEye(
+            camera_model(config.thermal), ThermalDetector(config.thermal.detector)
+        )
+        self._offset_s = mono_minus_unix_s
+        self.next: ThermalFrame | None = None
+        self.advance()
+
+    def advance(self) -> None:
+        """Read the next frame into ``next`` (None at the end)."""
+        try:
+            frame = self.source.read(timeout_s=0.0)
+        except EndOfStream:
+            self.next = None
+            return
+        # One clock for both cameras: the folder sampled its own offset when opened.
+        self.next = dataclasses.replace(frame, t_mono_s=frame.t_unix_s + self._offset_s)
+
+
+def replay(
+    config: Config, tlog: Path, frames_dir: Path, thermal_dir: Path | None = None
+) -> ReplayResult:
     """Run the pipeline over a recorded mission. Raises CameraError/TlogError on
     unusable inputs (the CLI reports them): a frames folder without frames, a tlog
-    without an autopilot."""
+    without an autopilot, thermal frames without a ``[thermal]`` section."""
     check_tlog(tlog)
     source = FramesDirSource(frames_dir)
     sized = SizedSource(source, config.camera.width_px, config.camera.height_px)
+    thermal = (
+        _Thermal(config, thermal_dir, source.mono_minus_unix_s) if thermal_dir is not None else None
+    )
     poses = PoseHistory(config.vehicle.pose_history_s)
     telemetry = _Telemetry(tlog, poses, source.mono_minus_unix_s)
     tracker = VictimTracker(config.tracker)
@@ -184,26 +227,43 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
             config.reporting.move_min_m,
             config.reporting.update_min_interval_s,
         ),
+        thermal.eye if thermal is not None else None,
     )
     first_reported: dict[int, float] = {}
     reports: list[ReplayReport] = []
     total = len(source)
-    while True:
-        try:
-            frame: Frame = sized.read(timeout_s=0.0)
-        except EndOfStream:
-            break
-        telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)
-        outcome = pipeline.process(frame, poses)
+
+    def decided(outcome: FrameOutcome) -> None:
         floor_down_m = telemetry.last_down_m + config.geolocation.floor_down_m
         for decision in outcome.decisions:
             v = decision.victim
-            first_reported.setdefault(v.victim_id, frame.t_unix_s)
+            first_reported.setdefault(v.victim_id, outcome.t_unix_s)
             report = v.to_report(telemetry.sysid, floor_down_m, telemetry.decoder.origins.origin)
-            reports.append(ReplayReport(frame.t_unix_s, report, decision.flags, v.merged_into))
+            reports.append(ReplayReport(outcome.t_unix_s, report, decision.flags, v.merged_into))
+
+    while True:
+        try:
+            frame: Frame | None = sized.read(timeout_s=0.0)
+        except EndOfStream:
+            frame = None
+        # The thermal frames captured before this colour frame go first.
+        while (
+            thermal is not None
+            and thermal.next is not None
+            and (frame is None or thermal.next.t_unix_s < frame.t_unix_s)
+        ):
+            telemetry.advance_to(thermal.next.t_unix_s + LOOKAHEAD_S)
+            decided(pipeline.process_thermal(thermal.next, poses))
+            thermal.advance()
+        if frame is None:
+            break
+        telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)
+        decided(pipeline.process(frame, poses))
         _progress(frame.index + 1, total, len(tracker.victims()))
     telemetry.advance_to(float("inf"))
     source.close()
+    if thermal is not None:
+        thermal.source.close()
     if telemetry.count == 0:  # a real log can lack LOCAL_POSITION_NED: say it, do not fail
         log.warning("replay: no pose decoded from %s (no ATTITUDE with LOCAL_POSITION_NED)", tlog)
     everything = tracker.victims()
@@ -215,6 +275,8 @@ def replay(config: Config, tlog: Path, frames_dir: Path) -> ReplayResult:
         frames=pipeline.counters.frames,
         frames_skipped=source.frames_skipped,
         frames_without_pose=pipeline.counters.frames_without_pose,
+        thermal_frames=pipeline.counters.thermal_frames,
+        thermal_frames_skipped=thermal.source.frames_skipped if thermal is not None else 0,
         poses=telemetry.count,
         reboots=telemetry.reboots,
         first_reported_unix_s=first_reported,
@@ -235,6 +297,7 @@ def result_document(result: ReplayResult) -> dict[str, Any]:
                 "victim_id": v.victim_id,
                 "state": v.state.name,
                 "urgency": v.urgency.name,
+                "cues": v.cues.names(),
                 "visibility_pct": round(v.visibility_pct, 2),
                 "north_m": v.north_m,
                 "east_m": v.east_m,
@@ -261,6 +324,8 @@ def result_document(result: ReplayResult) -> dict[str, Any]:
         "frames": result.frames,
         "frames_skipped": result.frames_skipped,
         "frames_without_pose": result.frames_without_pose,
+        "thermal_frames": result.thermal_frames,
+        "thermal_frames_skipped": result.thermal_frames_skipped,
         "poses": result.poses,
         "autopilot_reboots": result.reboots,
         "victims": victims,

@@ -6,6 +6,8 @@
 - HQ link (optional, mavlink_io.HqLink): acknowledgements and operator actions;
 - camera (companion/capture.py): frames into a one-slot mailbox (a newer frame
   replaces an unprocessed one; the drop is counted);
+- thermal camera (companion/capture.py, only with a ``[thermal]`` section): the
+  same, into the mailbox's thermal slot;
 - processing (companion/processing.py): operator actions and ground requests
   (companion/ground.py), the pipeline, persistence (companion/ledger.py), systemd
   watchdog;
@@ -41,15 +43,19 @@ from companion.ledger import Ledger
 from companion.links import Links
 from companion.livevideo import LiveVideo
 from companion.params import Settings
-from companion.pipeline import Pipeline
+from companion.pipeline import Pipeline, ThermalEye
 from companion.processing import FaultInjection, FrameStats, Processing
 from companion.reporter import Reporter
 from companion.reporting import ReportPolicy
 from companion.sdnotify import Notifier
-from companion.sources import open_camera
+from companion.sources import Frame, open_camera, write_frame
+from companion.sources.thermal import ThermalFrame
+from companion.sources.thermal_folder import write_thermal_frame
+from companion.sources.thermal_open import open_thermal
 from companion.state import load_state
 from companion.status import Status
 from companion.vision import make_detector
+from companion.vision.thermal import ThermalDetector
 from mavlink_io import dialect
 from mavlink_io.codec import MavMessage
 from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
@@ -99,11 +105,22 @@ class Service:
         self.policy.update_min_interval_s = config.reporting.update_min_interval_s
         self.param_server = ParamServer(self.settings, config.vehicle.component_id, m)
         self.camera_model = camera_model(config.camera)
+        thermal = None
+        if config.thermal is not None:
+            thermal = ThermalEye(
+                camera_model(config.thermal), ThermalDetector(config.thermal.detector)
+            )
+        else:
+            log.info("no [thermal] section: running with the colour camera only")
         self.pipeline = Pipeline(
-            config, self.camera_model, make_detector(config.detector), self.tracker, self.policy
+            config,
+            self.camera_model,
+            make_detector(config.detector),
+            self.tracker,
+            self.policy,
+            thermal,
         )
         self.tlog = TlogWriter(config.paths.tlogs, int(config.paths.tlog_max_mb * 1e6))
-        frames_dir = recording_dir(config)
         mailbox = FrameMailbox()
         # What the link threads hand over (_on_dialect): acknowledgements to the
         # reporter, operator actions and ground requests to processing.
@@ -130,14 +147,29 @@ class Service:
             config, self.signing, self.tlog, health=self._health, on_dialect=self._on_dialect
         )
         self.vehicle, self.hq = self.links.vehicle, self.links.hq
-        self.capture = Capture(
+        self.capture: Capture[Frame] = Capture(
             camera=open_camera(config.camera),
-            mailbox=mailbox,
-            frames_dir=frames_dir,
+            put=mailbox.put,
+            record=write_frame,
+            frames_dir=recording_dir(config, "frames"),
             camera_ok=self.camera_ok,
             announcer=self.announcer,
             stop=self.stop,
         )
+        # Set by the thermal camera's thread while its frames come (never without one).
+        self.thermal_ok = threading.Event()
+        self.thermal_capture: Capture[ThermalFrame] | None = None
+        if config.thermal is not None:
+            self.thermal_capture = Capture(
+                camera=open_thermal(config.thermal),
+                put=mailbox.put_thermal,
+                record=write_thermal_frame,
+                frames_dir=recording_dir(config, "thermal"),
+                camera_ok=self.thermal_ok,
+                announcer=self.announcer,
+                stop=self.stop,
+                condition="thermal camera",
+            )
         self.video = LiveVideo(config, self.camera_model, self.vehicle, self.signing, m)
         chooser, picture_sender = pictures.resume(
             config.pictures,
@@ -284,13 +316,12 @@ class Service:
         """Run until ``stop`` is set, or ``stop_reason`` (polled every
         ``_STOP_POLL_S``) names a reason to stop, such as a signal; 0 after a clean
         stop, 1 after a thread failed."""
+        bodies = [("camera", self.capture.run)]
+        if self.thermal_capture is not None:
+            bodies.append(("thermal camera", self.thermal_capture.run))
+        bodies += [("processing", self.processing.run), ("reporter", self.reporter.run)]
         threads = [
-            threading.Thread(target=self._guard(n, f), name=n, daemon=True)
-            for n, f in (
-                ("camera", self.capture.run),
-                ("processing", self.processing.run),
-                ("reporter", self.reporter.run),
-            )
+            threading.Thread(target=self._guard(n, f), name=n, daemon=True) for n, f in bodies
         ]
         for t in threads:
             t.start()
@@ -301,7 +332,10 @@ class Service:
             f"links open: vehicle {self.config.vehicle.url}, camera {self.config.camera.source}"
         )
         log.info(
-            "running: vehicle %s, camera %s", self.config.vehicle.url, self.config.camera.source
+            "running: vehicle %s, camera %s, thermal camera %s",
+            self.config.vehicle.url,
+            self.config.camera.source,
+            "none" if self.config.thermal is None else self.config.thermal.source,
         )
         while not self.stop.wait(_STOP_POLL_S):
             if (reason := stop_reason()) is not None:
@@ -337,6 +371,8 @@ class Service:
                 unsaved,
             )
         self.capture.camera.close()
+        if self.thermal_capture is not None:
+            self.thermal_capture.camera.close()
         self.video.close()
         self.links.close()
         self.tlog.close()
