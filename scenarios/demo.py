@@ -275,10 +275,12 @@ def _run_recorded(
         fps=DEMO_FPS,
         start_unix_s=float(math.floor(time.time() - duration_s)),
         speed_m_s=speed_m_s,
+        thermal=True,  # the Lepton beside the colour camera: thermal/ and [thermal]
     )
     print(
-        f"demo: {rec.frames} frames of a {rec.duration_s:.0f} s mission; the companion's "
-        "pipeline (the Pi's default person detector) processes every one",
+        f"demo: {rec.frames} frames and {rec.thermal_frames} thermal frames of a "
+        f"{rec.duration_s:.0f} s mission; the companion's pipeline (the Pi's default "
+        "person detector) processes every colour frame",
         flush=True,
     )
     started_s = time.monotonic()
