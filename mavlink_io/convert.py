@@ -24,7 +24,7 @@ from types import ModuleType
 from typing import Any
 
 from fusion.geodesy import ned_to_geodetic
-from fusion.types import MAX_LOCAL_M, GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import MAX_LOCAL_M, Cue, GlobalOrigin, TrackState, Urgency, VictimReport
 from mavlink_io import dialect
 from mavlink_io.errors import MavlinkIOError
 
@@ -248,11 +248,15 @@ def victim_report_to_msg(
         lon=lon,
         alt=alt,
         observations=min(report.observations, 0xFFFF),
+        cues=int(report.cues) & 0xFF,
     )
 
 
 def msg_to_victim_report(msg: MavMessage) -> VictimReport:
-    """VictimReport from RESCUE_VICTIM_REPORT; ValueError naming the bad field."""
+    """VictimReport from RESCUE_VICTIM_REPORT; ValueError naming the bad field.
+
+    ``cues`` is taken as sent (0 from a robot older than the field: not known); bits
+    no Cue names are the receiver's to refuse or mask (hq.wire does)."""
     try:
         state = TrackState(msg.state)
         urgency = Urgency(msg.urgency)
@@ -276,6 +280,7 @@ def msg_to_victim_report(msg: MavMessage) -> VictimReport:
             lat_deg=deg_from_e7(msg.lat) if has_global else None,
             lon_deg=deg_from_e7(msg.lon) if has_global else None,
             alt_m=msg.alt / MM_PER_M if has_global else None,
+            cues=Cue(int(msg.cues)),
         )
     except ValueError as exc:
         raise ValueError(f"RESCUE_VICTIM_REPORT victim {msg.victim_id}: {exc}") from None

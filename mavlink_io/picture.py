@@ -14,8 +14,15 @@ goes again, asking again (a lost acknowledgement costs one chunk, not a round).
 STORED or REJECTED ends it. Pacing (how many bytes a second) is the caller's.
 
 Receiver, ``Reassembly``: collects one picture's chunks (each checked against the
-first: same victim, size and CRC), in any order, duplicates ignored; ``jpeg()``
+first: same victim, kind, size and CRC), in any order, duplicates ignored; ``jpeg()``
 returns the whole picture once every chunk is in and its CRC-32 matches.
+
+A picture's kind (``fusion.types.Sensor``: the colour camera's view or the thermal
+camera's) is the chunk flag THERMAL, a bit of the existing flags byte: a signed chunk
+already fills a TUNNEL, so there is no room for a field, and a picture sent before
+the flag existed is a colour one, as it was. A receiver that does not know the flag
+refuses those chunks (unknown flag bits) instead of taking a thermal view for the
+colour one.
 
 ``BadChunk`` (a ValueError) names the field of a chunk that cannot be used.
 """
@@ -27,6 +34,7 @@ from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any
 
+from fusion.types import Sensor
 from mavlink_io.errors import MavlinkIOError
 
 CHUNK_BYTES = 86
@@ -34,6 +42,8 @@ BITMAP_BYTES = 32
 MAX_CHUNKS = BITMAP_BYTES * 8  # 256
 MAX_PICTURE_BYTES = MAX_CHUNKS * CHUNK_BYTES  # 22016
 FLAG_ACK_REQUEST = 1
+FLAG_THERMAL = 2  # the thermal camera's view (else the colour camera's)
+_KNOWN_FLAGS = FLAG_ACK_REQUEST | FLAG_THERMAL
 RESULT_STORED = 0
 RESULT_PARTIAL = 1
 RESULT_REJECTED = 2
@@ -78,6 +88,7 @@ class Chunk:
     index: int
     data: bytes
     ack_request: bool = False
+    kind: Sensor = Sensor.COLOUR
 
     def __post_init__(self) -> None:
         if not 0 < self.picture_id <= _MAX_U32:
@@ -105,7 +116,7 @@ class Chunk:
     def from_msg(cls, msg: Any) -> Chunk:
         """The checked chunk in a RESCUE_PICTURE_CHUNK; BadChunk names the bad field."""
         flags, length = int(msg.flags), int(msg.length)
-        if flags & ~FLAG_ACK_REQUEST:
+        if flags & ~_KNOWN_FLAGS:
             raise BadChunk(f"flags {flags:#x} has unknown bits")
         if not 0 < length <= CHUNK_BYTES:
             raise BadChunk(f"length {length} is not in 1..{CHUNK_BYTES}")
@@ -117,6 +128,7 @@ class Chunk:
             index=int(msg.chunk_index),
             data=bytes(msg.data[:length]),
             ack_request=bool(flags & FLAG_ACK_REQUEST),
+            kind=Sensor.THERMAL if flags & FLAG_THERMAL else Sensor.COLOUR,
         )
 
     def to_msg(self, module: ModuleType) -> Any:
@@ -127,7 +139,8 @@ class Chunk:
             self.crc32,
             self.size,
             self.index,
-            FLAG_ACK_REQUEST if self.ack_request else 0,
+            (FLAG_ACK_REQUEST if self.ack_request else 0)
+            | (FLAG_THERMAL if self.kind is Sensor.THERMAL else 0),
             len(self.data),
             data,
         )
@@ -135,18 +148,33 @@ class Chunk:
     def asking(self) -> Chunk:
         """The same chunk with ACK_REQUEST set."""
         return Chunk(
-            self.picture_id, self.victim_id, self.crc32, self.size, self.index, self.data, True
+            self.picture_id,
+            self.victim_id,
+            self.crc32,
+            self.size,
+            self.index,
+            self.data,
+            True,
+            self.kind,
         )
 
 
-def split(picture_id: int, victim_id: int, jpeg: bytes) -> list[Chunk]:
+def split(
+    picture_id: int, victim_id: int, jpeg: bytes, kind: Sensor = Sensor.COLOUR
+) -> list[Chunk]:
     """The chunks of ``jpeg`` (ValueError when it is empty or too big to send)."""
     if not 0 < len(jpeg) <= MAX_PICTURE_BYTES:
         raise ValueError(f"a picture has 1 to {MAX_PICTURE_BYTES} bytes, not {len(jpeg)}")
     crc = crc32(jpeg)
     return [
         Chunk(
-            picture_id, victim_id, crc, len(jpeg), i, jpeg[i * CHUNK_BYTES : (i + 1) * CHUNK_BYTES]
+            picture_id,
+            victim_id,
+            crc,
+            len(jpeg),
+            i,
+            jpeg[i * CHUNK_BYTES : (i + 1) * CHUNK_BYTES],
+            kind=kind,
         )
         for i in range(chunk_count(len(jpeg)))
     ]
@@ -203,11 +231,12 @@ class Reassembly:
     victim_id: int
     crc32: int
     size: int
+    kind: Sensor = Sensor.COLOUR
     parts: dict[int, bytes] = field(default_factory=dict)
 
     @classmethod
     def starting(cls, chunk: Chunk) -> Reassembly:
-        return cls(chunk.picture_id, chunk.victim_id, chunk.crc32, chunk.size)
+        return cls(chunk.picture_id, chunk.victim_id, chunk.crc32, chunk.size, chunk.kind)
 
     @property
     def count(self) -> int:
@@ -223,9 +252,10 @@ class Reassembly:
 
     def add(self, chunk: Chunk) -> bool:
         """Take ``chunk``; False for a duplicate. BadChunk when it contradicts the
-        picture's first chunk (another victim, size or CRC under the same ID)."""
+        picture's first chunk (another victim, kind, size or CRC under the same ID)."""
         for name, mine, theirs in (
             ("victim_id", self.victim_id, chunk.victim_id),
+            ("kind", self.kind, chunk.kind),
             ("size", self.size, chunk.size),
             ("crc32", self.crc32, chunk.crc32),
         ):
@@ -263,11 +293,13 @@ class Transfer:
         jpeg: bytes,
         initial_wait_s: float = 1.5,
         max_wait_s: float = 8.0,
+        kind: Sensor = Sensor.COLOUR,
     ) -> None:
         self.picture_id = picture_id
         self.victim_id = victim_id
+        self.kind = kind
         self.size = len(jpeg)
-        self.chunks = split(picture_id, victim_id, jpeg)
+        self.chunks = split(picture_id, victim_id, jpeg, kind)
         self.initial_wait_s = initial_wait_s
         self.max_wait_s = max_wait_s
         self.received: frozenset[int] = frozenset()

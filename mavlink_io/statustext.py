@@ -13,7 +13,10 @@ quiet: MAV_SEVERITY_INFO (6), listed, not spoken.
 
 An announcement says which robot, what, how urgent and where, in one 50-byte
 chunk when it fits: ``R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start`` (metres
-from the local frame's origin, where the rover's EKF started).
+from the local frame's origin, where the rover's EKF started). A victim only the
+thermal camera has seen (under debris, in the dark: look closer, nothing may show)
+says so: ``R2 CRITICAL victim 7, warm only, 12.3 m N 4.5 m E``, shortened to fit
+(first without "of start", then without the spaces before the directions).
 
 A STATUSTEXT holds 50 bytes of ASCII. Longer text goes out as MAVLink 2 chunks
 sharing a non-zero ``id`` with ``chunk_seq`` 0, 1, ...; QGC (and MAVProxy) take a
@@ -30,7 +33,7 @@ from __future__ import annotations
 import threading
 from types import ModuleType
 
-from fusion.types import TrackState, Urgency, VictimReport
+from fusion.types import Cue, TrackState, Urgency, VictimReport
 from mavlink_io import dialect
 from mavlink_io.codec import MavMessage
 
@@ -67,15 +70,27 @@ def where_text(north_m: float, east_m: float) -> str:
     return f"{abs(north_m):.1f} m {ns} {abs(east_m):.1f} m {ew} of start"
 
 
+def warm_only(cues: Cue) -> bool:
+    """Only the thermal camera has seen it (no colour cue)."""
+    return bool(cues & Cue.WARM) and not cues & (Cue.COLOUR_BODY | Cue.COLOUR_PART)
+
+
 def victim_text(report: VictimReport) -> str:
     """``R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start``; a state other than
-    confirmed is said instead of the urgency (``R2 victim 7 RESCUED, ...``)."""
+    confirmed is said instead of the urgency (``R2 victim 7 RESCUED, ...``); a victim
+    seen warm only says so, shortened to fit one chunk when it can."""
     robot = robot_label(report.robot_sysid)
     where = where_text(report.north_m, report.east_m)
     state = _STATE_WORDS.get(report.state)
-    if state is None:
-        return f"{robot} {report.urgency.name} victim {report.victim_id}, {where}"
-    return f"{robot} victim {report.victim_id} {state}, {where}"
+    if state is not None:
+        return f"{robot} victim {report.victim_id} {state}, {where}"
+    head = f"{robot} {report.urgency.name} victim {report.victim_id}"
+    if not warm_only(report.cues):
+        return f"{head}, {where}"
+    shorter = where.removesuffix(" of start")
+    forms = [where, shorter, shorter.replace(" m ", "m ")]
+    texts = [f"{head}, warm only, {w}" for w in forms]
+    return next((t for t in texts if len(t) <= TEXT_BYTES), texts[1])
 
 
 def split_text(data: bytes) -> list[bytes]:

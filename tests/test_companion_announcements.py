@@ -134,3 +134,24 @@ def test_conditions_once_per_change_and_flapping_held() -> None:
     assert c.update("disk", False, 12.5) == [("disk", False)]  # conditions are independent
     assert c.update("camera", False, 13.0) == []
     assert c.due(22.0) == [("camera", False)]  # the hold is over: the settled state
+
+
+def test_a_victim_only_the_thermal_camera_saw_is_announced_warm_only() -> None:
+    """What the operator hears of a person under debris or in the dark: the thermal
+    camera alone found them, so nothing may show when the team gets there."""
+    import threading
+
+    from companion.announcements import Announcer
+    from companion.reporting import Decision
+    from fusion.types import Cue
+
+    wake = threading.Event()
+    ann = Announcer(enabled=True, announce_severity=5, robot_sysid=lambda: 1, wake=wake)
+    v = _victim(victim_id=3, urgency=Urgency.CRITICAL, cues=Cue.WARM)
+    ann.victim(Decision(v, 2, announce=True, spoken=True), v.to_report(1, 0.0, None))
+    seen = dataclasses.replace(v, victim_id=4, cues=Cue.WARM | Cue.COLOUR_BODY)
+    ann.victim(Decision(seen, 2, announce=True, spoken=True), seen.to_report(1, 0.0, None))
+    (warm, both) = ann.take(0.0)
+    assert warm.text == "R1 CRITICAL victim 3, warm only, 5.0 m N 2.0 m E" and warm.spoken
+    assert len(warm.text) <= 50 and wake.is_set()
+    assert both.text == "R1 CRITICAL victim 4, 5.0 m N 2.0 m E of start"

@@ -200,3 +200,33 @@ def test_a_lost_ack_costs_one_chunk_not_a_round() -> None:
     assert not t.done
     t.on_ack(Ack(3, RESULT_STORED, bytes(32)))
     assert t.done and t.next_chunk(10.0) is None and t.seconds_until_due(10.0) is None
+
+
+def test_a_thermal_picture_says_its_kind_and_still_fits_one_tunnel() -> None:
+    from fusion.types import Sensor
+
+    m = dialect.load()
+    data = _jpeg(700, seed=4)
+    signed = Codec(1, 191, Signing(b"k" * 32, 0))
+    hq = Codec(245, 190, Signing(b"k" * 32, 0))
+    chunks = picture.split(21, 5, data, Sensor.THERMAL)
+    assert len(signed.encode(chunks[0].to_msg(m))) == tunnel.TUNNEL_PAYLOAD_BYTES
+    r: Reassembly | None = None
+    for c in chunks:
+        inner = tunnel.unpack_tunnel(tunnel.wrap(signed, c.asking().to_msg(m)), hq)
+        assert inner is not None
+        got = Chunk.from_msg(inner)
+        assert got.kind is Sensor.THERMAL and got.ack_request
+        r = r or Reassembly.starting(got)
+        r.add(got)
+    assert r is not None and r.kind is Sensor.THERMAL and r.jpeg() == data
+    # A picture sent before the flag existed (flags 0) is the colour camera's.
+    (plain,) = hq.feed(Codec(1, 191).encode(picture.split(22, 5, data)[0].to_msg(m)))
+    assert Chunk.from_msg(plain).kind is Sensor.COLOUR
+    # One picture ID cannot be both kinds.
+    with pytest.raises(BadChunk, match="kind"):
+        r.add(picture.split(21, 5, data)[1])
+    # The sender keeps the kind in every round, the asking chunk included.
+    t = Transfer(23, 5, data, kind=Sensor.THERMAL)
+    sent = [c for c in iter(lambda: t.next_chunk(0.0), None)]
+    assert sent and all(c.kind is Sensor.THERMAL for c in sent) and sent[-1].ack_request

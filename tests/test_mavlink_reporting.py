@@ -255,3 +255,38 @@ def test_full_disk_stops_recording_once(tmp_path: Path, caplog: pytest.LogCaptur
     warnings = [r for r in caplog.records if "recording stopped" in r.getMessage()]
     assert len(warnings) == 1
     writer.close()
+
+
+def _dialect_without_cues(tmp_path: Path) -> object:
+    """The dialect as a robot or HQ from before the cues field has it."""
+    from mavlink_io import dialect
+
+    xml = dialect.DIALECT_XML.read_text()
+    start = xml.index("      <extensions/>\n")
+    end = xml.index("</field>\n", start) + len("</field>\n")
+    old = tmp_path / "rescue.xml"
+    old.write_text(xml[:start] + xml[end:])
+    return dialect.load(tmp_path / "cache", old)
+
+
+def test_cues_round_trip_and_old_peers_parse_the_report(tmp_path: Path) -> None:
+    from fusion.types import Cue
+
+    for cues in (Cue.WARM, Cue.COLOUR_BODY | Cue.WARM, Cue.COLOUR_PART, Cue(0)):
+        msg = convert.victim_report_to_msg(report(cues=cues), 5, 0, 1.7e9, None)
+        (back,) = Codec(255, 190).feed(Codec(7, 191).encode(msg))
+        assert convert.msg_to_victim_report(back).cues == cues
+    old = _dialect_without_cues(tmp_path)
+    # A new robot's report with cues: an old HQ checks its CRC and reads every old field.
+    new_frame = Codec(7, 191).encode(
+        convert.victim_report_to_msg(report(cues=Cue.WARM), 6, 0, 1.7e9, None)
+    )
+    (at_old,) = Codec(255, 190, module=old).feed(new_frame)
+    assert at_old.get_type() == "RESCUE_VICTIM_REPORT" and at_old.report_seq == 6
+    assert at_old.victim_id == 3 and at_old.urgency == int(Urgency.CRITICAL)
+    # An old robot's report reaches a new HQ with cues 0: not known.
+    old_msg = old.MAVLink_rescue_victim_report_message(  # type: ignore[attr-defined]
+        *[getattr(at_old, n) for n in at_old.get_fieldnames()]
+    )
+    (at_new,) = Codec(255, 190).feed(Codec(7, 191, module=old).encode(old_msg))
+    assert convert.msg_to_victim_report(at_new).cues == Cue(0)

@@ -127,3 +127,25 @@ def test_a_word_longer_than_a_chunk_is_cut_and_nothing_is_lost() -> None:
         (shown,) = qgc_reassemble(msgs)
         assert shown.replace(" ", "") == "Z" * length
         assert " ... " not in shown
+
+
+def test_a_victim_seen_warm_only_says_so_in_one_chunk() -> None:
+    from fusion.types import Cue
+
+    text = statustext.victim_text(report(cues=Cue.WARM))
+    assert text == "R2 CRITICAL victim 7, warm only, 12.3 m N 4.5 m E"
+    far = statustext.victim_text(report(cues=Cue.WARM, north_m=-123.4, east_m=-45.6))
+    assert far == "R2 CRITICAL victim 7, warm only, 123.4m S 45.6m W"
+    for t in (text, far):
+        assert len(t) <= statustext.TEXT_BYTES
+        (msg,) = statustext.statustext_msgs(t, statustext.MAV_SEVERITY_CRITICAL)
+        assert msg.id == 0  # one unchunked STATUSTEXT
+    # When nothing fits (an ID of a later epoch), all of it is said, in two chunks.
+    big = statustext.victim_text(report(cues=Cue.WARM, victim_id=16777217))
+    assert big == "R2 CRITICAL victim 16777217, warm only, 12.3 m N 4.5 m E"
+    msgs = statustext.statustext_msgs(big, statustext.MAV_SEVERITY_CRITICAL)
+    assert qgc_reassemble(msgs) == [big]
+    # Seen by the colour camera too (or not known): the usual line.
+    both = statustext.victim_text(report(cues=Cue.WARM | Cue.COLOUR_PART))
+    assert both == "R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start"
+    assert statustext.victim_text(report()) == both
