@@ -294,3 +294,30 @@ def test_the_thermal_burial_benchmark_views_show_the_warm_share_asked_for() -> N
     assert view.warm_px >= MIN_THERMAL_VIEW_PX
     assert view.temps_c.shape == (120, 160)
     assert float(view.temps_c.max()) > 30.0  # the part that shows is warm
+
+
+def test_a_victim_seen_only_warm_counts_as_in_view_from_its_first_warm_frame() -> None:
+    from scenarios.score import truth_from_dict
+
+    def entry(vid: int, colour: float | None, warm: float | None) -> dict[str, object]:
+        return {
+            "victim_id": vid,
+            "north_m": 1.0,
+            "east_m": 1.0,
+            "urgency": "CRITICAL",
+            "first_in_view_unix_s": colour,
+            "first_warm_in_view_unix_s": warm,
+        }
+
+    truth = truth_from_dict(
+        {
+            "victims": [
+                entry(1, None, 12.5),  # under a blanket: only the thermal camera sees it
+                entry(2, 30.0, 20.0),
+                entry(3, 5.0, None),
+                entry(4, None, None),
+            ]
+        }
+    )
+    seen = {v.victim_id: v.first_in_view_unix_s for v in truth.victims}
+    assert seen == {1: 12.5, 2: 20.0, 3: 5.0, 4: None}
