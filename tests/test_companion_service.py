@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import NotifySocket
 
@@ -45,7 +46,7 @@ def ground(sim: LiveSim) -> Iterator[GroundPeer]:
     peer.close()
 
 
-def _config(tmp_path: Path, sim: LiveSim, record_frames: bool = False) -> Path:
+def _config(tmp_path: Path, sim: LiveSim, record_frames: bool = False, extra: str = "") -> Path:
     cfg = tmp_path / "companion.toml"
     cfg.write_text(
         f"""
@@ -63,6 +64,7 @@ reopen_max_backoff_s = 0.5
 [paths]
 state_dir = "{tmp_path / "state"}"
 record_frames = {str(record_frames).lower()}
+{extra}
 """
     )
     return cfg
@@ -180,9 +182,69 @@ def test_sigterm_stops_within_5_s_and_ready_comes_first(
         start = time.monotonic()
         code = _stop(proc)
         elapsed = time.monotonic() - start
-    assert code == 0, (tmp_path / "companion.log").read_text()[-3000:]
+    log = (tmp_path / "companion.log").read_text()
+    assert code == 0, log[-3000:]
     assert elapsed < 5.0
     notify_socket.wait_for("STOPPING=1", 1.0)
+    assert log.count("running with the colour camera only") == 1  # no [thermal] section
+
+
+def test_a_thermal_camera_that_is_absent_is_said_and_the_colour_camera_goes_on(
+    tmp_path: Path, sim: LiveSim, ground: GroundPeer
+) -> None:
+    ground.acking.set()
+    absent = "/dev/video97"
+    cfg = _config(
+        tmp_path,
+        sim,
+        extra=f'[thermal]\nsource = "lepton:{absent}"\nreopen_max_backoff_s = 0.5\n',
+    )
+    proc = _start(cfg, tmp_path / "companion.log")
+    try:
+        ground.wait_for(
+            lambda m: m.get_type() == "STATUSTEXT" and "thermal camera lost" in str(m.text), 30.0
+        )
+        report = ground.wait_for(lambda m: m.get_type() == "RESCUE_VICTIM_REPORT", 60.0)
+        assert report.flags & FLAG_NEW
+    finally:
+        code = _stop(proc)
+    log = (tmp_path / "companion.log").read_text()
+    assert code == 0, log[-3000:]
+    assert absent in log and "Traceback" not in log
+    assert "colour camera only" not in log
+
+
+def test_thermal_frames_are_recorded_beside_the_colour_frames(
+    tmp_path: Path, sim: LiveSim, ground: GroundPeer
+) -> None:
+    # A recorded thermal folder stands in for the camera: its frames flow through the
+    # thermal thread (they are from another day, so no pose: nothing is detected on
+    # them) and are recorded; at its end the stream is said to have ended, and the
+    # colour camera goes on.
+    from companion.sources.thermal import ThermalFrame
+    from companion.sources.thermal_folder import write_thermal_frame
+
+    folder = tmp_path / "lepton"
+    folder.mkdir()
+    rng = np.random.default_rng(1)
+    for i in range(30):
+        temps_c = (20.0 + 0.05 * rng.standard_normal((120, 160))).astype(np.float32)
+        write_thermal_frame(folder, ThermalFrame(temps_c, 0.0, 1_767_000_000.0 + i / 8.7, i))
+    cfg = _config(
+        tmp_path, sim, record_frames=True, extra=f'[thermal]\nsource = "frames:{folder}"\n'
+    )
+    proc = _start(cfg, tmp_path / "companion.log")
+    try:
+        ground.wait_for(lambda m: m.get_type() == "RESCUE_VICTIM_REPORT", 60.0)
+    finally:
+        code = _stop(proc)
+    log = (tmp_path / "companion.log").read_text()
+    assert code == 0, log[-3000:]
+    assert "announce: R1 thermal camera stream ended" in log
+    (recorded,) = (tmp_path / "state" / "thermal").iterdir()
+    assert sorted(p.name for p in recorded.iterdir()) == sorted(p.name for p in folder.iterdir())
+    (colour,) = (tmp_path / "state" / "frames").iterdir()
+    assert len(list(colour.iterdir())) > 10
 
 
 def test_watchdog_pings_stop_when_processing_stalls(
