@@ -163,6 +163,41 @@ def _heating_pipes(t: np.ndarray) -> None:
     t[40:120:6, 20:120] = 33.0
 
 
+def _lepton_on_a_rover() -> FrameGeometry:
+    """A Lepton 3.5 on the default mount (0.3 m up, 12° down) of a level rover."""
+    from companion.calibration import camera_model
+    from companion.config import Config, ThermalConfig
+    from fusion.types import PoseSample
+
+    pose = PoseSample(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return FrameGeometry.from_pose(camera_model(ThermalConfig()), pose, Config().geolocation)
+
+
+def _hand_at(t: np.ndarray, geometry: FrameGeometry, north_m: float, east_m: float) -> None:
+    """A 32 °C hand, 0.1 m square, on the floor at (north, east)."""
+    corners = [(north_m + a, east_m + b) for a in (-0.05, 0.05) for b in (-0.05, 0.05)]
+    px = geometry.pixels_of_floor(np.array(corners))
+    assert px is not None and np.isfinite(px).all()
+    (u0, v0), (u1, v1) = np.floor(px.min(axis=0)).astype(int), np.ceil(px.max(axis=0)).astype(int)
+    t[v0 : max(v1, v0 + 2), u0 : max(u1, u0 + 2)] = 32.0
+
+
+def test_the_merge_gap_is_on_the_floor_not_in_pixels() -> None:
+    geometry = _lepton_on_a_rover()
+    t = _scene()
+    _hand_at(t, geometry, 3.5, -0.3)  # 0.6 m apart, 3.5 m away: two people's hands,
+    _hand_at(t, geometry, 3.5, 0.3)  # about 25 pixels apart in the image
+    _hand_at(t, geometry, 1.0, -0.13)  # 0.26 m apart, 1 m away: one person's hands,
+    _hand_at(t, geometry, 1.0, 0.13)  # about 38 pixels apart
+    finds = ThermalDetector().analyse(t, geometry, 0.0).finds
+    ranges = sorted(
+        round(float(geometry.floor_ne_m(np.array([[f.detection.u_px, f.detection.v_px]]))[0, 0]))
+        for f in finds
+    )
+    assert ranges == [1, 4, 4]  # the near pair one find, the far pair two
+    assert all(f.detection.cues == ("warm", "warm_part") for f in finds)
+
+
 @pytest.mark.parametrize(
     ("draw", "reason"),
     [

@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from companion.vision.base import DEFAULT_SILHOUETTE_FILL, FrameGeometry, VisionError
+from companion.vision.thermal_group import group_in_pixels, group_on_floor
 from companion.vision.thermal_params import ThermalDetectorParams
 from companion.vision.thermal_track import ThermalMemory
 from fusion.types import Detection
@@ -134,14 +135,6 @@ class ThermalDetector:
         result.finds.sort(key=lambda f: -f.detection.score)
         return result
 
-    def _gap_px(self, shape: tuple[int, ...], geometry: FrameGeometry | None) -> int:
-        h, w = shape[:2]
-        if geometry is not None:
-            mpp = geometry.metres_per_px(w / 2.0, h * 0.75)
-            if mpp is not None and mpp > 0.0:
-                return max(1, min(round(self.params.merge_gap_m / mpp), w // 4))
-        return max(1, round(self.params.photo_merge_gap_share * w))
-
     def _group(
         self,
         labels: np.ndarray,
@@ -149,20 +142,12 @@ class ThermalDetector:
         joinable: np.ndarray,
         geometry: FrameGeometry | None,
     ) -> list[np.ndarray]:
-        """Cluster indices per person: each seed with the joinable clusters near it."""
-        gap = self._gap_px(labels.shape, geometry)
-        seed_mask = seeds[labels].astype(np.uint8)
-        away = cv2.distanceTransform(1 - seed_mask, cv2.DIST_L2, 3)
-        reach = (away <= gap).astype(np.uint8)
-        _, zones = cv2.connectedComponents(reach, connectivity=8)
-        both = (zones > 0) & (labels > 0)
-        zone_of = np.zeros(len(seeds), np.int64)
-        zone_of[labels[both]] = zones[both]  # a cluster lies in one zone (any of its pixels)
-        zone_of[~joinable] = 0
-        zone_of[0] = 0
-        order = np.argsort(zone_of, kind="stable")
-        kept = order[zone_of[order] > 0]
-        return [g for g in np.split(kept, np.flatnonzero(np.diff(zone_of[kept])) + 1) if g.size]
+        """Cluster labels per person: each seed with the joinable clusters near it."""
+        if geometry is not None:
+            gap_m = self.params.merge_gap_m
+            return group_on_floor(labels, seeds, joinable, geometry, gap_m)
+        gap_px = max(1.0, round(self.params.photo_merge_gap_share * labels.shape[1]))
+        return group_in_pixels(labels, seeds, joinable, gap_px)
 
     def _judge(
         self,
