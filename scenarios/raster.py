@@ -40,7 +40,7 @@ def _to_px(poly_ne: np.ndarray, res_m: float) -> np.ndarray:
     return np.round(pts * 16).astype(np.int32)
 
 
-def _smooth_noise(rng: np.random.Generator, shape: tuple[int, int], cell_px: int) -> np.ndarray:
+def smooth_noise(rng: np.random.Generator, shape: tuple[int, int], cell_px: int) -> np.ndarray:
     """Zero-mean noise of about unit std with features of about cell_px pixels."""
     small = rng.standard_normal(
         (max(2, shape[0] // cell_px + 2), max(2, shape[1] // cell_px + 2))
@@ -54,8 +54,8 @@ def _floor_texture(
 ) -> np.ndarray:
     base = np.array(world.floor.colour_rgb[::-1], np.float32)
     k = world.floor.texture_contrast
-    stains = _smooth_noise(rng, (rows, cols), max(2, int(0.6 / res_m)))
-    mottle = _smooth_noise(rng, (rows, cols), max(2, int(0.08 / res_m)))
+    stains = smooth_noise(rng, (rows, cols), max(2, int(0.6 / res_m)))
+    mottle = smooth_noise(rng, (rows, cols), max(2, int(0.08 / res_m)))
     grain = rng.standard_normal((rows, cols)).astype(np.float32)
     shade = 1.0 + k * (0.45 * stains + 0.3 * mottle + 0.25 * grain)
     img = base[None, None, :] * shade[:, :, None]
@@ -111,7 +111,7 @@ def _paint(
     cover = cv2.resize(mask, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     colour = np.array(rgb[::-1], np.float32)
     shade = 1.0 + grain * (
-        0.6 * _smooth_noise(rng, (h, w), max(2, int(0.05 / res_m)))
+        0.6 * smooth_noise(rng, (h, w), max(2, int(0.05 / res_m)))
         + 0.4 * rng.standard_normal((h, w)).astype(np.float32)
     )
     patch = colour[None, None, :] * shade[:, :, None]

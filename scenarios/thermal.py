@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 from fusion.camera import CameraModel
 from scenarios import body3d
 from scenarios.errors import SimError
-from scenarios.raster import _smooth_noise
+from scenarios.raster import smooth_noise
 from scenarios.render import PoseLike, camera_rays, floor_rays
 from scenarios.solids import PROP_BASE, Solids
 from scenarios.world import World
@@ -135,7 +135,7 @@ def _rasters(world: World) -> _Rasters:
     fl = world.floor
     floor = np.full((rows, cols), fl.temperature_c, np.float32)
     if fl.temperature_variation_c > 0:
-        floor += np.float32(fl.temperature_variation_c) * _smooth_noise(
+        floor += np.float32(fl.temperature_variation_c) * smooth_noise(
             rng, (rows, cols), max(2, int(1.5 / TEMP_RES_M))
         )
     imprints = []
