@@ -233,6 +233,11 @@ def run() -> dict[str, object]:
     phase_s = duration_s / 2
     first = [m for t, m in rss if 60.0 <= t < 120.0] or [m for _, m in rss[:12]]
     last = [m for t, m in rss if t >= rss[-1][0] - 60.0]
+    round_s = duration_s / len(_ROUNDS)
+    by_round = [
+        statistics.median([m for t, m in rss if k * round_s <= t < (k + 1) * round_s] or [0.0])
+        for k in range(len(_ROUNDS))
+    ]
     closed_med, open_med = _ms(latency["closed"], 0.5), _ms(latency["open"], 0.5)
     return {
         "started": started,
@@ -257,6 +262,9 @@ def run() -> dict[str, object]:
         "rescue-hq RSS, first full minute, median (MiB)": round(statistics.median(first), 1),
         "rescue-hq RSS, last minute, median (MiB)": round(statistics.median(last), 1),
         "rescue-hq RSS, max (MiB)": round(max(m for _, m in rss), 1),
+        f"rescue-hq RSS median per round, {'/'.join(_ROUNDS)} (MiB)": " / ".join(
+            f"{m:.1f}" for m in by_round
+        ),
         "tracebacks in rescue-hq's log": errors,
     }
 
