@@ -55,7 +55,8 @@ F32 = NDArray[np.float32]
 
 LEPTON_FPS = 8.7
 KELVIN_OFFSET = 273.15
-TEMP_RES_M = 0.02  # the top-down temperature rasters
+TEMP_RES_M = 0.02  # the top-down temperature rasters (coarser on floors over 40 m)
+_MAX_RASTER_CELLS = 2000
 MIN_WARM_VIEW_PX = 10  # a victim's warmth counts as in view from this many pixels
 _CLOTHING_SHARE = 0.70  # clothing's excess over ambient, as a share of the skin's
 _TROUSERS_SHARE = 0.65
@@ -109,19 +110,20 @@ def decode_centikelvin_png(data: bytes) -> F32:
     return (img.astype(np.float32) / np.float32(100.0)) - np.float32(KELVIN_OFFSET)
 
 
-def _fill(mask: np.ndarray, poly_ne: np.ndarray, value: float) -> None:
-    pts = np.column_stack([poly_ne[:, 1] / TEMP_RES_M - 0.5, poly_ne[:, 0] / TEMP_RES_M - 0.5])
+def _fill(mask: np.ndarray, poly_ne: np.ndarray, value: float, res_m: float) -> None:
+    pts = np.column_stack([poly_ne[:, 1] / res_m - 0.5, poly_ne[:, 0] / res_m - 0.5])
     cv2.fillPoly(mask, [np.round(pts * 16).astype(np.int32)], value, cv2.LINE_8, 4)
 
 
-def _blur(img: np.ndarray, sigma_m: float) -> np.ndarray:
-    return np.asarray(cv2.GaussianBlur(img, (0, 0), max(sigma_m / TEMP_RES_M, 0.5)), np.float32)
+def _blur(img: np.ndarray, sigma_m: float, res_m: float) -> np.ndarray:
+    return np.asarray(cv2.GaussianBlur(img, (0, 0), max(sigma_m / res_m, 0.5)), np.float32)
 
 
 @dataclass(frozen=True)
 class _Rasters:
-    """Top-down (rows north, columns east) at TEMP_RES_M."""
+    """Top-down (rows north, columns east) at res_m."""
 
+    res_m: float
     floor_c: F32  # ambient with its variation and heated patches
     imprints: tuple[tuple[int, F32], ...]  # (warm object index, shape 0..1)
     body_heat_k: F32  # a body's warmth under thin cover: excess over ambient
@@ -129,32 +131,33 @@ class _Rasters:
 
 
 def _rasters(world: World) -> _Rasters:
-    rows = math.ceil(world.size_m[0] / TEMP_RES_M)
-    cols = math.ceil(world.size_m[1] / TEMP_RES_M)
+    res = max(TEMP_RES_M, max(world.size_m) / _MAX_RASTER_CELLS)
+    rows = math.ceil(world.size_m[0] / res)
+    cols = math.ceil(world.size_m[1] / res)
     rng = np.random.default_rng([world.seed, 0x7E47])
     fl = world.floor
     floor = np.full((rows, cols), fl.temperature_c, np.float32)
     if fl.temperature_variation_c > 0:
         floor += np.float32(fl.temperature_variation_c) * smooth_noise(
-            rng, (rows, cols), max(2, int(1.5 / TEMP_RES_M))
+            rng, (rows, cols), max(2, int(1.5 / res))
         )
     imprints = []
     for q, w in enumerate(world.warm_objects):
         shape = np.zeros((rows, cols), np.float32)
-        _fill(shape, w.polygon, 1.0)
+        _fill(shape, w.polygon, 1.0, res)
         if w.kind == "heated_floor":
             # Pipes under the floor: warmer stripes across the patch, 0.15 m apart.
-            n = (np.arange(rows, dtype=np.float32) + 0.5) * TEMP_RES_M
-            e = (np.arange(cols, dtype=np.float32) + 0.5) * TEMP_RES_M
+            n = (np.arange(rows, dtype=np.float32) + 0.5) * res
+            e = (np.arange(cols, dtype=np.float32) + 0.5) * res
             along = np.cos(w.heading_rad) * n[:, None] + np.sin(w.heading_rad) * e[None, :]
             stripes = 1.0 + 0.06 * np.cos(along * (2 * math.pi / 0.15))
             floor += (
-                _blur(shape, 0.12)
+                _blur(shape, 0.12, res)
                 * stripes.astype(np.float32)
                 * np.float32(w.temperature_c - fl.temperature_c)
             )
         elif w.kind == "imprint":
-            imprints.append((q, _blur(shape, 0.25 * w.width_m)))
+            imprints.append((q, _blur(shape, 0.25 * w.width_m, res)))
     heat = np.zeros((rows, cols), np.float32)
     owner = np.zeros((rows, cols), np.int32)
     if any(d.heat_through > 0 for d in world.debris):
@@ -164,17 +167,17 @@ def _rasters(world: World) -> _Rasters:
                 share = {"skin": 1.0, "top": _CLOTHING_SHARE, "trousers": _TROUSERS_SHARE}
                 if part.role in share:
                     layer = np.zeros((rows, cols), np.float32)
-                    _fill(layer, part.polygon_ne_m, excess * share[part.role])
+                    _fill(layer, part.polygon_ne_m, excess * share[part.role], res)
                     np.maximum(heat, layer, out=heat)
-                    _fill(owner, part.polygon_ne_m, k)
+                    _fill(owner, part.polygon_ne_m, k, res)
         # Cover lies over the body and drapes down to the floor beside it: its sides,
         # which a low camera sees, are warm too. The warmth reaches _DRAPE_M beyond the
         # body's outline, and the cover spreads it a little.
-        grow = 2 * round(_DRAPE_M / TEMP_RES_M) + 1
+        grow = 2 * round(_DRAPE_M / res) + 1
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (grow, grow))
-        heat = _blur(np.asarray(cv2.dilate(heat, kernel), np.float32), 0.04)
+        heat = _blur(np.asarray(cv2.dilate(heat, kernel), np.float32), 0.04, res)
         owner = np.asarray(cv2.dilate(owner.astype(np.float32), kernel), np.int32)
-    return _Rasters(floor, tuple(imprints), heat, owner)
+    return _Rasters(res, floor, tuple(imprints), heat, owner)
 
 
 class ThermalRenderer:
@@ -237,7 +240,7 @@ class ThermalRenderer:
         return (t_s - self._ffc_phase_s) % opt.ffc_period_s < opt.ffc_duration_s
 
     def _sample(self, layer: F32, north: F32, east: F32, border: float) -> F32:
-        inv = np.float32(1.0 / TEMP_RES_M)
+        inv = np.float32(1.0 / self._rasters.res_m)
         out = cv2.remap(
             layer,
             east * inv - np.float32(0.5),
@@ -328,8 +331,8 @@ class ThermalRenderer:
                 pe = p[debris][covered, 1].astype(np.float32)[None, :]
                 heat = self._sample(ras.body_heat_k, pn, pe, 0.0)[0]
                 temp[covered] += through[covered] * heat
-                cell_r = np.clip((pn[0] / TEMP_RES_M).astype(int), 0, ras.body_owner.shape[0] - 1)
-                cell_c = np.clip((pe[0] / TEMP_RES_M).astype(int), 0, ras.body_owner.shape[1] - 1)
+                cell_r = np.clip((pn[0] / ras.res_m).astype(int), 0, ras.body_owner.shape[0] - 1)
+                cell_c = np.clip((pe[0] / ras.res_m).astype(int), 0, ras.body_owner.shape[1] - 1)
                 under = ras.body_owner[cell_r, cell_c]
                 shows = under[heat * through[covered] > 1.0]
                 for k, v in enumerate(self.world.victims, start=1):
