@@ -321,3 +321,20 @@ def test_a_victim_seen_only_warm_counts_as_in_view_from_its_first_warm_frame() -
     )
     seen = {v.victim_id: v.first_in_view_unix_s for v in truth.victims}
     assert seen == {1: 12.5, 2: 20.0, 3: 5.0, 4: None}
+
+
+def test_the_rover_drives_around_solid_warm_things_and_over_warm_floor() -> None:
+    from scenarios.pathplan import Obstacles
+
+    world = World(
+        warm_objects=(
+            warm_object("machinery", 4.0, 2.0),
+            warm_object("dog", 8.0, 2.0),
+            warm_object("heated_floor", 6.0, 5.0),
+            warm_object("imprint", 9.0, 5.0),
+        ),
+        seed=2,
+    )
+    obstacles = Obstacles(world)
+    for n, e, blocked in ((4.0, 2.0, True), (8.0, 2.0, True), (6.0, 5.0, False), (9.0, 5.0, False)):
+        assert bool(obstacles.blocked[obstacles.cell((n, e))]) is blocked
