@@ -2,7 +2,8 @@
 
 - ``victims.geojson``: a FeatureCollection of Points (RFC 7946: [lon, lat, alt]);
   properties: id, urgency, visibility_pct, state, robots, sources, first/last seen
-  (ISO 8601 UTC), sigma_m, north_m/east_m/down_m.
+  (ISO 8601 UTC), sigma_m, north_m/east_m/down_m, cues (what saw the person:
+  ``colour_body``, ``colour_part``, ``warm``; empty when the robots do not say).
 - ``victims.kml``: one Placemark per victim with a style per urgency (Google
   Earth, and any GIS or phone map app a ground team uses).
 - ``victims.csv``: one row per victim for a ground team's list or a spreadsheet
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.types import Urgency
+from hq.records import cue_words
 from hq.view import HqVictim
 
 GEOJSON_NAME = "victims.geojson"
@@ -57,6 +59,7 @@ CSV_COLUMNS = (
     "last_seen",
     "north_m",
     "east_m",
+    "cues",
 )
 
 # KML colours are aabbggrr.
@@ -106,6 +109,7 @@ def geojson(victims: list[HqVictim]) -> dict[str, Any]:
                     "north_m": round(v.north_m, 3),
                     "east_m": round(v.east_m, 3),
                     "down_m": round(v.down_m, 3),
+                    "cues": v.cues.names(),
                 },
             }
         )
@@ -134,7 +138,7 @@ def kml(victims: list[HqVictim]) -> bytes:
         ET.SubElement(mark, "description").text = (
             f"{v.urgency.name}, {v.visibility_pct:.0f}% visible, {v.state.name}; "
             f"robots {', '.join(str(r) for r in v.robots)}; ±{v.sigma_m:.1f} m; "
-            f"last seen {_iso(v.last_seen_unix_s)}"
+            f"last seen {_iso(v.last_seen_unix_s)}; seen: {cue_words(v.cues)}"
         )
         ET.SubElement(mark, "styleUrl").text = f"#{v.urgency.name.lower()}"
         stamp = ET.SubElement(mark, "TimeStamp")
@@ -169,6 +173,7 @@ def csv_text(victims: list[HqVictim]) -> bytes:
                 _iso(v.last_seen_unix_s),
                 f"{v.north_m:.2f}",
                 f"{v.east_m:.2f}",
+                " ".join(v.cues.names()),
             ]
         )
     return out.getvalue().encode("utf-8")

@@ -24,7 +24,9 @@ The common frame:
 A robot's own victims are never merged by the HQ (the robot's tracker saw them at
 once and knows better); an HQ victim holds at most one victim per robot.
 
-Fusion of a group is the information-weighted mean (P = (Σ Pᵢ⁻¹)⁻¹, x = P Σ Pᵢ⁻¹ xᵢ).
+Fusion of a group is the information-weighted mean (P = (Σ Pᵢ⁻¹)⁻¹, x = P Σ Pᵢ⁻¹ xᵢ);
+what saw the person is the union of the robots' cues (one robot's colour camera and
+another's thermal camera: colour body · warm).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import numpy as np
 
 from fusion.geodesy import geodetic_to_ned, ned_to_geodetic
 from fusion.kalman import mahalanobis2 as fusion_mahalanobis2
-from fusion.types import Cov2, GlobalOrigin, VictimReport
+from fusion.types import NO_CUES, Cov2, Cue, GlobalOrigin, VictimReport
 
 CHI2_GATE_2DOF_99 = 9.2103  # scipy.stats.chi2.ppf(0.99, df=2)
 
@@ -119,6 +121,14 @@ def fuse(members: Sequence[Placed]) -> Fused:
     x_ned, p_ned = _information_mean(xs_ned, [_cov(m.cov_ne_m2) for m in members])
     cov = _as_cov2(p_geo if p_geo is not None else p_ned)
     return Fused(float(x_ned[0]), float(x_ned[1]), cov, geo)
+
+
+def union_cues(reports: Sequence[VictimReport]) -> Cue:
+    """Every sensing that saw the person, on any robot (none: not known)."""
+    out = NO_CUES
+    for r in reports:
+        out |= r.cues
+    return Cue(out)
 
 
 def _information_mean(

@@ -22,6 +22,8 @@ is defined:
 - covariance: variances from ``MIN_VARIANCE_M2`` to ``MAX_VARIANCE_M2``;
 - latitude/longitude (when given): on the globe and not exactly 0/0 (ArduPilot's
   "no position yet"); altitude within ``MIN_ALT_M``..``MAX_ALT_M``;
+- cues: only the bits fusion.types.Cue names (0: not known, a robot that does not
+  say); hq.wire masks others off as a report arrives, a stored one is refused;
 - an evidence picture: a JPEG (start and end markers) of 1 to ``MAX_PICTURE_BYTES``.
 """
 
@@ -33,7 +35,7 @@ from dataclasses import asdict, dataclass, fields
 from enum import Enum
 from typing import Any
 
-from fusion.types import MAX_LOCAL_M, GlobalOrigin, TrackState, Urgency, VictimReport
+from fusion.types import MAX_LOCAL_M, NO_CUES, Cue, GlobalOrigin, TrackState, Urgency, VictimReport
 from hq.errors import HqError
 from mavlink_io.picture import MAX_PICTURE_BYTES, BadChunk, check_jpeg
 
@@ -43,6 +45,7 @@ MIN_VARIANCE_M2 = 1e-6  # 1 mm sigma
 MAX_VARIANCE_M2 = 1e10  # 100 km sigma
 MIN_ALT_M = -1_000.0  # below the Dead Sea shore, above any mine floor
 MAX_ALT_M = 10_000.0
+ALL_CUES = Cue.COLOUR_BODY | Cue.COLOUR_PART | Cue.WARM
 
 
 ACK_RESULT_ACCEPTED = 0  # RESCUE_ACK_RESULT
@@ -151,8 +154,20 @@ def check_origin(origin: GlobalOrigin) -> GlobalOrigin:
     return origin
 
 
+def known_cues(cues: int) -> Cue:
+    """The cue bits the HQ knows (others dropped)."""
+    return Cue(int(cues) & int(ALL_CUES))
+
+
+def cue_words(cues: Cue) -> str:
+    """How people read the cues: ``colour body · warm``; ``not known`` for none."""
+    return " · ".join(n.replace("_", " ") for n in cues.names()) or "not known"
+
+
 def check_report(r: VictimReport) -> VictimReport:
     """``r`` itself when every value is usable by the HQ; BadRecord naming the first that is not."""
+    if not isinstance(r.cues, int) or isinstance(r.cues, bool) or r.cues != known_cues(r.cues):
+        raise BadRecord(f"cues {r.cues!r} is not a bitmask of {int(ALL_CUES)} (RESCUE_CUE)")
     check_time("first_seen (Unix s)", r.first_seen_unix_s)
     check_time("last_seen (Unix s)", r.last_seen_unix_s)
     for name, value in (("north_m", r.north_m), ("east_m", r.east_m), ("down_m", r.down_m)):
@@ -187,6 +202,10 @@ def report_from_payload(payload: str) -> VictimReport:
         d["urgency"] = Urgency(d["urgency"])
         (a, b), (c, e) = d["cov_ne_m2"]
         d["cov_ne_m2"] = ((a, b), (c, e))
+        cues = d.get("cues", int(NO_CUES))  # a row from before the cues were kept: not known
+        if not isinstance(cues, int) or isinstance(cues, bool) or not 0 <= cues <= ALL_CUES:
+            raise TypeError(f"cues {cues!r} is not a bitmask of {int(ALL_CUES)} (RESCUE_CUE)")
+        d["cues"] = Cue(cues)
         report = VictimReport(**d)
     except (ValueError, KeyError, TypeError) as exc:  # JSONDecodeError is a ValueError
         raise BadRecord(f"stored report: {exc}") from None

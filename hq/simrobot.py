@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from fusion.types import TrackState, Urgency, VictimReport
+from fusion.types import NO_CUES, Cue, TrackState, Urgency, VictimReport
 from hq import wire
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import RESCUE_OPERATOR_ACTION_ID
@@ -102,6 +102,7 @@ class SimRobot:
         seen_unix_s: float | None = None,
         geo: tuple[float, float, float] | None = None,
         state: TrackState = TrackState.CONFIRMED,
+        cues: Cue = NO_CUES,
     ) -> VictimReport:
         t = time.time() if seen_unix_s is None else seen_unix_s
         return VictimReport(
@@ -120,6 +121,7 @@ class SimRobot:
             lat_deg=None if geo is None else geo[0],
             lon_deg=None if geo is None else geo[1],
             alt_m=None if geo is None else geo[2],
+            cues=cues,
         )
 
     def report_msg(

@@ -4,7 +4,9 @@ Most urgent first. VISIBLE is the share of the body a robot sees, in percent (of
 several robots, the lowest: the most buried view); urgency in colour (CRITICAL red,
 MEDIUM orange, LIGHT green) when the output is a terminal, plain text otherwise. Rescued and false-alarm
 victims are dimmed. ``ACK`` counts operator actions still waiting for the robot's
-acknowledgement. Rendering is pure (text in, text out); the app decides when to
+acknowledgement. CUES says what saw the person, on any robot: ``body`` (the colour
+camera's person models), ``part`` (only an exposed part: a hand, a face), ``warm``
+(the thermal camera); ``-`` when the robots do not say. Rendering is pure (text in, text out); the app decides when to
 redraw (at most 2 Hz).
 """
 
@@ -13,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from fusion.types import TrackState, Urgency
+from fusion.types import Cue, TrackState, Urgency
 from hq.records import Robot
 from hq.view import HqVictim
 
@@ -34,6 +36,7 @@ _STATUS_FLAGS = (  # RESCUE_STATUS_FLAGS bits worth a glance
     (64, "SIGN"),
 )
 _ROBOT_SILENT_S = 5.0  # a robot unheard this long is shown as silent
+_CUE_SHORT = {Cue.COLOUR_BODY: "body", Cue.COLOUR_PART: "part", Cue.WARM: "warm"}
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,11 @@ def _position(v: HqVictim) -> str:
     return f"N{v.north_m:+.1f} E{v.east_m:+.1f}"
 
 
+def cues_short(cues: Cue) -> str:
+    """``body+warm``; ``-`` when not known."""
+    return "+".join(word for cue, word in _CUE_SHORT.items() if cues & cue) or "-"
+
+
 def _paint(text: str, code: str, colour: bool) -> str:
     return f"{code}{text}{_RESET}" if colour else text
 
@@ -68,7 +76,7 @@ def _paint(text: str, code: str, colour: bool) -> str:
 def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) -> list[str]:
     head = (
         f"{'ID':>4} {'URGENCY':<9}{'VISIBLE':>7} {'STATE':<17} {'ROBOT:VICTIM':<16}"
-        f"{'POSITION':<24}{'±m':>5} {'SEEN':>7} {'ACK':>3}"
+        f"{'POSITION':<24}{'±m':>5} {'SEEN':>7} {'ACK':>3} CUES"
     )
     rows = [_paint(head, _BOLD, colour)]
     for v in victims:
@@ -79,7 +87,7 @@ def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) ->
         line_rest = (
             f"{f'{v.visibility_pct:.0f}%':>7} {state:<17} {srcs:<16}{_position(v):<24}"
             f"{v.sigma_m:>5.1f} {age(now_unix_s - v.last_seen_unix_s):>7} "
-            f"{v.actions_pending or '':>3}"
+            f"{v.actions_pending or '':>3} {cues_short(v.cues)}"
         )
         if done:
             rows.append(_paint(f"{v.hq_id:>4} {urgency}{line_rest}", _DIM, colour))

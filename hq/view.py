@@ -2,7 +2,8 @@
 
 An HQ victim keeps the highest urgency of its sources and the lowest visibility
 (the most buried view of the person), the earliest first-seen and latest
-last-seen times, and the information-weighted position (hq.merge.fuse). Sources a
+last-seen times, the information-weighted position (hq.merge.fuse) and every cue
+that saw it (hq.merge.union_cues). Sources a
 robot itself merged into another of its victims (state MERGED) are folded into
 that victim and not shown on their own.
 
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fusion.types import Cov2, TrackState, Urgency
+from fusion.types import NO_CUES, Cov2, Cue, TrackState, Urgency
 from hq import merge
 from hq.merge import Origins, placed
 from hq.records import Action, OperatorAction, Source
@@ -55,6 +56,7 @@ class HqVictim:
     last_seen_unix_s: float
     observations: int
     actions_pending: int  # operator actions sent but not yet acknowledged by the robot
+    cues: Cue = NO_CUES  # which sensing saw it, on any robot (none: not known)
 
     @property
     def robots(self) -> tuple[int, ...]:
@@ -114,6 +116,7 @@ def build(sources: list[Source], actions: list[Action], origins: Origins) -> lis
                 last_seen_unix_s=max(r.last_seen_unix_s for r in reports),
                 observations=sum(r.observations for r in reports),
                 actions_pending=sum(1 for a in acts if a.acked_unix_s is None),
+                cues=merge.union_cues(reports),
             )
         )
     out.sort(key=lambda v: (-int(v.urgency), v.hq_id))

@@ -8,21 +8,26 @@ addressed to one robot's component.
 
 This is where a radio message becomes HQ values: every field is checked here once
 (``BadMessage`` names the field), so the rest of the HQ never sees a value it cannot
-store, merge, draw or export.
+store, merge, draw or export. The one exception is a report's ``cues``: bits no cue
+names (a newer robot's sensing) are masked off with a line per robot and minute, not
+refused, since the rest of the report is the victim's news.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from fusion.types import GlobalOrigin, VictimReport
 from hq import records
 from hq.errors import HqError
+from hq.ratelog import RateLimitedLog
 from hq.records import IncomingReport, RobotStatus
 from mavlink_io import convert, tunnel
 from mavlink_io.codec import Codec
 
 MavMessage = Any
+_UNKNOWN_CUES_LOG = RateLimitedLog(60.0)
 
 
 class BadMessage(HqError, ValueError):
@@ -33,7 +38,17 @@ def incoming_report(msg: MavMessage, received_unix_s: float) -> IncomingReport:
     """The checked report in a RESCUE_VICTIM_REPORT; BadMessage when a field is unusable."""
     try:
         records.check_report_time_usec(int(msg.time_usec))
-        report = records.check_report(convert.msg_to_victim_report(msg))
+        report = convert.msg_to_victim_report(msg)
+        known = records.known_cues(report.cues)
+        if known != report.cues:
+            _UNKNOWN_CUES_LOG.say(
+                ("cues", report.robot_sysid),
+                f"robot {report.robot_sysid} victim {report.victim_id}: cues "
+                f"{int(report.cues):#04x} has bits no cue names (a newer robot?); kept "
+                f"{int(known):#04x} ({', '.join(known.names()) or 'none'})",
+            )
+            report = dataclasses.replace(report, cues=known)
+        report = records.check_report(report)
     except ValueError as exc:  # BadRecord, or VictimReport's own checks
         raise BadMessage(f"victim {msg.victim_id}: {exc}") from None
     return IncomingReport(

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from fusion.types import TrackState
-from hq.records import ACK_RESULT_REJECTED, Action, Robot, RobotStatus
+from hq.records import ACK_RESULT_REJECTED, Action, Robot, RobotStatus, cue_words
 from hq.view import HqVictim
 
 CHI2_2DOF_95 = 5.991  # scipy.stats.chi2.ppf(0.95, df=2): the ellipse's scale
@@ -191,6 +191,8 @@ def _victim(
         "first_seen_unix_s": v.first_seen_unix_s,
         "last_seen_unix_s": v.last_seen_unix_s,
         "sightings": v.observations,
+        "cues": v.cues.names(),  # colour_body, colour_part, warm; [] not known
+        "seen": cue_words(v.cues),  # "colour body · warm"
         "actions_pending": v.actions_pending,
         "actions": [_action(a) for a in actions],
         "notes": [{"text": n.text, "created_unix_s": n.created_unix_s} for n in notes],

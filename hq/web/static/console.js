@@ -158,13 +158,17 @@ function fitAll() {
   map.fitBounds(L.latLngBounds(pts).pad(0.15), { maxZoom: 4 });
 }
 
+const SEEN_TITLE = "What saw this person, on any robot: colour body (the colour camera's person models), " +
+  "colour part (only a hand or a face showed), warm (the thermal camera; warm only: nothing may show, look under the debris).";
+
 function popupHtml(v) {
   const where = v.lat_deg == null ? "lat/lon unknown (no EKF origin)" : `${v.lat_deg.toFixed(6)}, ${v.lon_deg.toFixed(6)}`;
   const box = el("div", { class: "popup" },
     el("b", {}, `V${v.id} ${v.urgency} · ${STATE_LABEL[v.state] || v.state}`), el("br"),
     `N ${signed(v.north_m)} m, E ${signed(v.east_m)} m, ±${v.sigma_m.toFixed(1)} m`, el("br"),
     where, el("br"),
-    `robot ${v.robots.join(", ")} · ${v.visibility_pct.toFixed(0)} % visible`);
+    `robot ${v.robots.join(", ")} · ${v.visibility_pct.toFixed(0)} % visible`, el("br"),
+    `seen: ${v.seen}`);
   return box;
 }
 
@@ -336,6 +340,7 @@ function fillCard(card, v) {
   card.querySelector(".facts").replaceChildren(
     el("div", {}, `N ${signed(v.north_m)} m  E ${signed(v.east_m)} m  ±${v.sigma_m.toFixed(1)} m · ${where}`),
     el("div", {}, `robot ${v.robots.join(", ")} · ${v.visibility_pct.toFixed(0)} % visible · ${v.sightings} sightings`),
+    el("div", { class: "seen", title: SEEN_TITLE }, `seen: ${v.seen}`),
     el("div", {}, `first seen ${clock(v.first_seen_unix_s)} · last seen `,
       el("span", { class: "t", dataset: { t: v.last_seen_unix_s } }, "")),
   );
