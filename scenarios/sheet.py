@@ -2,9 +2,11 @@
 
 The map is north-up: the route in cyan (start marked), victims outlined in their
 urgency colour (LIGHT green, MEDIUM orange, CRITICAL red) with id and visibility,
-and the rover's place for each sample frame numbered in yellow. The frames are the
-best view of each victim along the route (most uncovered pixels), then evenly
-spaced frames to fill six.
+and the rover's place for each sample frame numbered in yellow; warm objects that
+are not people outlined in magenta with their kind and temperature. The frames are
+the best view of each victim along the route (most uncovered pixels), then evenly
+spaced frames to fill six, each with the thermal camera's frame inset in false colour
+(ambient - 2 to ambient + 20 degrees C, black to white).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from fusion.types import Urgency
 from scenarios.motion import Trajectory, TruePose, route_of
 from scenarios.raster import top_down_bgr
 from scenarios.render import Renderer
+from scenarios.thermal import ThermalRenderer
 from scenarios.world import World
 
 URGENCY_BGR = {
@@ -32,6 +35,8 @@ _TILE = (320, 240)
 _SCAN_STEP_S = 1.0
 _GOOD_VIEW_PX = 12000
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
+_WARM_BGR = (230, 80, 230)
+_INSET = (128, 96)
 
 
 def _to_map(n: float, e: float, rows: int) -> tuple[int, int]:
@@ -78,6 +83,13 @@ def _map(
         label = f"#{v.victim_id} {v.urgency.name} {v.visibility_pct:.0f}%"
         cv2.putText(img, label, (x - 40, y - 30), _FONT, 0.42, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(img, label, (x - 40, y - 30), _FONT, 0.42, colour, 1, cv2.LINE_AA)
+    for w in world.warm_objects:
+        poly = np.array([_to_map(n, e, rows) for n, e in w.polygon], np.int32)
+        cv2.polylines(img, [poly], True, _WARM_BGR, 2, cv2.LINE_AA)
+        x, y = _to_map(w.north_m, w.east_m, rows)
+        label = f"{w.kind} {w.temperature_c:.0f}C"
+        cv2.putText(img, label, (x - 30, y + 4), _FONT, 0.38, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(img, label, (x - 30, y + 4), _FONT, 0.38, _WARM_BGR, 1, cv2.LINE_AA)
     for k, p in enumerate(shots, start=1):
         x, y = _to_map(p.north_m, p.east_m, rows)
         tip = _to_map(
@@ -107,10 +119,16 @@ def contact_sheet(
     duration = traj.duration_s()
     shots = _pick_frames(renderer, traj, duration, frames)
     left = _map(world, renderer, traj, duration, shots)
+    thermal = ThermalRenderer(world)
+    lo_c = world.floor.temperature_c - 2.0
     tiles = []
     for k, pose in enumerate(shots, start=1):
         res = renderer.render(pose, frame_key=k)
         tile = cv2.resize(res.image, _TILE, interpolation=cv2.INTER_AREA)
+        temps = thermal.render(pose, pose.t_s, frame_key=k).temps_c
+        grey = np.clip((temps - lo_c) * (255.0 / 22.0), 0, 255).astype(np.uint8)
+        inset = cv2.resize(cv2.applyColorMap(grey, cv2.COLORMAP_INFERNO), _INSET)
+        tile[-_INSET[1] :, -_INSET[0] :] = inset
         seen = (
             ", ".join(f"#{vid} {px}px" for vid, px in sorted(res.visible_px.items())) or "no victim"
         )
