@@ -171,7 +171,12 @@ class SbsServer:
         self._pending: dict[int, SbsTrack] = {}  # changed or retired, by address: sent at once
         self._wake_pending = False  # a wake-up byte is on its way: publish sends no other
         self._clients: dict[int, _Client] = {}  # by file descriptor; only the thread changes it
-        self._selector: selectors.BaseSelector | None = None
+        try:
+            self._selector: selectors.BaseSelector | None = self._new_selector()
+        except OSError:
+            for s in (self._listener, self._wake_r, self._wake_w):
+                s.close()
+            raise
         self._failures = 0
         self._last_failure = ""
         self._accept_failing = False  # said once, until a client is accepted again
@@ -228,6 +233,8 @@ class SbsServer:
             clients, self._clients = list(self._clients.values()), {}
         for s in [self._listener, self._wake_r, self._wake_w, *(c.sock for c in clients)]:
             s.close()
+        if self._selector is not None:
+            self._selector.close()
 
     def __enter__(self) -> SbsServer:
         return self
@@ -266,10 +273,15 @@ class SbsServer:
             self._selector.close()
             self._selector = None
 
+    def _new_selector(self) -> selectors.BaseSelector:
+        selector = selectors.DefaultSelector()
+        selector.register(self._listener, selectors.EVENT_READ)
+        selector.register(self._wake_r, selectors.EVENT_READ)
+        return selector
+
     def _serve(self) -> None:
-        self._selector = selectors.DefaultSelector()
-        self._selector.register(self._listener, selectors.EVENT_READ)
-        self._selector.register(self._wake_r, selectors.EVENT_READ)
+        if self._selector is None:  # a new one after a failure
+            self._selector = self._new_selector()
         with self._lock:  # a wake-up lost in a failure: the first refresh sends what is pending
             self._wake_pending = False
         accept_paused_until: float | None = None
