@@ -338,3 +338,15 @@ def test_the_rover_drives_around_solid_warm_things_and_over_warm_floor() -> None
     obstacles = Obstacles(world)
     for n, e, blocked in ((4.0, 2.0, True), (8.0, 2.0, True), (6.0, 5.0, False), (9.0, 5.0, False)):
         assert bool(obstacles.blocked[obstacles.cell((n, e))]) is blocked
+
+
+def test_the_contact_sheet_shows_warm_things_and_thermal_insets() -> None:
+    from scenarios.sheet import contact_sheet
+
+    world = World(warm_objects=(warm_object("machinery", 3.0, 0.9, temperature_c=80.0),), seed=2)
+    sheet = contact_sheet(world, frames=2)
+    magenta = (sheet[:, :, 0] > 200) & (sheet[:, :, 1] < 120) & (sheet[:, :, 2] > 200)
+    assert magenta.sum() > 100  # the machine outlined on the map
+    yellowish = (sheet[:, :, 0] > 130) & (sheet[:, :, 0] < 200)
+    hot = (sheet[:, :, 2] > 240) & (sheet[:, :, 1] > 240) & yellowish
+    assert hot.sum() > 50  # and white-hot in an inset (inferno: 80 C is off the scale)
