@@ -130,6 +130,22 @@ def test_damaged_files_are_refused_in_one_line(shared_data: Path, tmp_path: Path
     assert refused >= 4  # the empty, noise and cut files at least
 
 
+@needs_exiftool
+def test_raw_counts_in_the_wrong_byte_order_are_caught(
+    shared_data: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The camera's RawValueMedian tells a misread raw image from a real one."""
+    real_decode = flir.decode_raw
+
+    def swapped(data: bytes, kind: str, path: Path) -> np.ndarray:
+        return real_decode(data, kind, path).byteswap()
+
+    monkeypatch.setattr(flir, "decode_raw", swapped)
+    ducks = shared_data / "images" / "thermal_radiometric" / "wm03_ducks_swimming.jpg"  # PNG raw
+    with pytest.raises(FlirError, match="wrong byte order"):
+        read_flir(ducks)
+
+
 def test_a_missing_file_is_named(tmp_path: Path) -> None:
     with pytest.raises(FlirError, match="no such file"):
         read_flir(tmp_path / "nothing.jpg")

@@ -11,7 +11,7 @@ exposed parts:
 2. Warm pixels form clusters (8-connected, at least ``min_blob_px``). A cluster is
    the seed of a person when its warmest pixel is skin: at least ``min_body_c``,
    ``min_peak_contrast_k`` above ambient and not over ``max_skin_c``. Warm clusters
-   within ``merge_gap_m`` of a seed join it (a head and two hands out of water are one
+   within ``merge_gap_m`` of a seed (on the floor, ``thermal_group``) join it (a head and two hands out of water are one
    person; the hands in cold water read 14-19 °C). A cluster with a pixel hotter than
    skin is machinery, hot water or a lamp: never a seed, never joined.
 3. Each group's size on the floor (from the geometry: the pixels' metres) tells a
