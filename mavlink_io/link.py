@@ -1,7 +1,7 @@
 """The byte-transport interface every link implements, and what the transports share.
 
     Link (Protocol)        read(timeout_s) -> bytes, write(data), close(), name
-    ├── SerialLink         pyserial, select() on the file descriptor             (seriallink.py)
+    ├── SerialLink         pyserial, poll() on the file descriptor               (seriallink.py)
     ├── UdpInLink          bound socket; replies to the address that spoke last    (netlinks.py)
     ├── UdpOutLink         sends to a fixed address, receives its replies          (netlinks.py)
     ├── TcpLink            TCP client                                              (netlinks.py)
@@ -12,7 +12,7 @@
                                                                                   (reconnect.py)
 
 A link never parses MAVLink: it moves bytes. ``read`` waits on the transport with
-select() up to ``timeout_s`` and returns ``b""`` on timeout; it raises ``LinkError``
+poll() up to ``timeout_s`` and returns ``b""`` on timeout; it raises ``LinkError``
 only when the transport itself is broken (device gone, TCP peer of a client link
 closed). Connectionless links (UDP) and servers (TCP in) are never "broken" by a
 peer: data with nowhere to go is dropped and counted in ``counters.writes_dropped``.
@@ -62,13 +62,22 @@ class LinkCounters:
 
 
 def wait_readable(fileno: int | list[int], timeout_s: float) -> list[int]:
-    """The file descriptors readable within ``timeout_s``; LinkError if one is closed."""
+    """The file descriptors readable within ``timeout_s``; LinkError if one is closed.
+
+    poll(), not select(): select() fails on a descriptor above 1023, which a process
+    with many open files (rescue-hq with hundreds of console connections) hands out."""
     fds = [fileno] if isinstance(fileno, int) else fileno
+    poller = select.poll()
     try:
-        readable, _, _ = select.select(fds, [], [], max(0.0, timeout_s))
-    except (OSError, ValueError) as exc:  # closed fd
-        raise LinkError(f"select failed: {exc}") from exc
-    return readable
+        for fd in fds:
+            poller.register(fd, select.POLLIN | select.POLLPRI)
+        events = poller.poll(max(0.0, timeout_s) * 1000.0)
+    except (OSError, ValueError, TypeError) as exc:  # a closed or negative fd
+        raise LinkError(f"poll failed: {exc}") from exc
+    if any(ev & select.POLLNVAL for _, ev in events):
+        raise LinkError("poll failed: a descriptor is closed")
+    # A hung-up or failed descriptor counts as readable: its read says what happened.
+    return [fd for fd, _ in events]
 
 
 def bound_address(sock: socket.socket | None, name: str) -> tuple[str, int]:

@@ -290,3 +290,28 @@ def test_reconnecting_tcp_client_reconnects_to_restarted_server() -> None:
 def test_reconnecting_link_rejects_bad_backoff() -> None:
     with pytest.raises(ValueError, match="backoff"):
         ReconnectingLink(LinkSpec("udpin", host="127.0.0.1"), initial_backoff_s=2, max_backoff_s=1)
+
+
+def test_links_read_on_descriptors_above_1023() -> None:
+    # A process with many files open (rescue-hq with hundreds of console connections)
+    # hands a new link a descriptor above 1023, where select() fails.
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 1200:
+        pytest.skip(f"the descriptor limit {hard} is below 1200")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, 1200), hard))
+    fillers = [os.open(os.devnull, os.O_RDONLY) for _ in range(1100)]
+    server = UdpInLink("127.0.0.1", 0)
+    client = UdpOutLink("127.0.0.1", server.local_address[1])
+    try:
+        assert server._sock is not None and server._sock.fileno() > 1023
+        client.write(b"hello")
+        assert read_until(server, b"hello", time.monotonic() + 2.0) == b"hello"
+        assert server.read(0.05) == b""  # a timeout, not an error
+    finally:
+        client.close()
+        server.close()
+        for fd in fillers:
+            os.close(fd)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
