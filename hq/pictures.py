@@ -4,7 +4,8 @@
 RESCUE_PICTURE_CHUNK: every field is checked (mavlink_io.picture.Chunk; refused
 with a counter and a rate-limited line), a picture the registry holds (same number,
 size and CRC-32) is answered STORED when asked, one older than the victim's picture
-the registry holds REJECTED (it is not kept), the others are collected; a complete
+of its kind (colour or thermal: a victim has one of each) the registry holds REJECTED
+(it is not kept), the others are collected; a complete
 picture is joined, checked (CRC-32, JPEG markers: else REJECTED), stored, and only
 then answered STORED: never STORED for what is not kept. A chunk asking for it gets the bitmap of what arrived.
 
@@ -149,7 +150,7 @@ class PictureIntake:
             self._refuse(robot, f"refused RESCUE_PICTURE_CHUNK from system {robot}: {exc}")
             return False
         try:
-            stored = self.registry.picture_id(robot, chunk.victim_id)
+            stored = self.registry.picture_id(robot, chunk.victim_id, chunk.kind)
         except sqlite3.Error as exc:
             log.debug("cannot read pictures: %s", exc)
             return False
@@ -176,7 +177,7 @@ class PictureIntake:
         """Whether the registry keeps this very picture (its number and its bytes): a
         robot whose state lost commits (a power cut) may give a number again to
         another picture, which is then collected and stored, not answered STORED."""
-        jpeg = self.registry.picture(robot, chunk.victim_id)
+        jpeg = self.registry.picture(robot, chunk.victim_id, chunk.kind)
         return jpeg is not None and (len(jpeg), zlib.crc32(jpeg)) == (chunk.size, chunk.crc32)
 
     def _complete(self, robot: int, chunk: Chunk, r: Reassembly, answer: Answer) -> bool:
@@ -190,7 +191,7 @@ class PictureIntake:
             return False
         try:
             fresh = self.registry.store_picture(
-                robot, chunk.victim_id, chunk.picture_id, jpeg, time.time()
+                robot, chunk.victim_id, chunk.picture_id, jpeg, time.time(), chunk.kind
             )
         except RegistryError as exc:  # not answered: the robot asks again later
             self.counters.store_failures += 1
@@ -203,6 +204,7 @@ class PictureIntake:
         self._answer(answer, chunk.picture_id, picture.RESULT_STORED, _ALL)
         self.counters.stored += 1
         self._event(
-            f"picture robot {robot} victim {chunk.victim_id} #{chunk.picture_id}: {len(jpeg)} bytes"
+            f"{chunk.kind} picture robot {robot} victim {chunk.victim_id} #{chunk.picture_id}:"
+            f" {len(jpeg)} bytes"
         )
         return True

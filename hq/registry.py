@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from fusion.types import GlobalOrigin, TrackState
+from fusion.types import GlobalOrigin, Sensor, TrackState
 from hq import epoch, merge, registry_rows
 from hq.merge import Origins, Placed, placed
 from hq.records import (
@@ -323,48 +323,60 @@ class Registry:
             )
         return cur.rowcount == 1
 
-    # -- evidence pictures (one per robot's victim: the newest picture_id) ----------------
+    # -- evidence pictures (per robot's victim and kind: the newest picture_id) -----------
 
     def store_picture(
-        self, robot_sysid: int, victim_id: int, picture_id: int, jpeg: bytes, now_unix_s: float
+        self,
+        robot_sysid: int,
+        victim_id: int,
+        picture_id: int,
+        jpeg: bytes,
+        now_unix_s: float,
+        kind: Sensor = Sensor.COLOUR,
     ) -> bool:
-        """Keep a robot's picture of its victim unless a newer one (higher picture_id)
-        or this very one is stored; True when stored. The same picture_id with other
-        bytes (a robot that lost its last commits gave the number out again) replaces
-        the stored one: it is the robot's newest. RegistryError as for reports."""
+        """Keep a robot's picture of its victim, of this kind (the colour or the thermal
+        camera's view), unless a newer one (higher picture_id) or this very one is
+        stored; True when stored. The same picture_id with other bytes (a robot that
+        lost its last commits gave the number out again) replaces the stored one: it
+        is the robot's newest. RegistryError as for reports."""
         with transaction(self._db, self.path) as db:
             cur = db.execute(
-                "INSERT INTO pictures (robot_sysid, victim_id, picture_id, received_unix_s, jpeg)"
-                " VALUES (?, ?, ?, ?, ?) ON CONFLICT (robot_sysid, victim_id) DO UPDATE SET"
-                " picture_id=excluded.picture_id, received_unix_s=excluded.received_unix_s,"
-                " jpeg=excluded.jpeg WHERE excluded.picture_id > pictures.picture_id"
+                "INSERT INTO pictures (robot_sysid, victim_id, kind, picture_id, received_unix_s,"
+                " jpeg) VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (robot_sysid, victim_id, kind)"
+                " DO UPDATE SET picture_id=excluded.picture_id,"
+                " received_unix_s=excluded.received_unix_s, jpeg=excluded.jpeg"
+                " WHERE excluded.picture_id > pictures.picture_id"
                 " OR (excluded.picture_id = pictures.picture_id AND excluded.jpeg != pictures.jpeg)"
                 " OR typeof(pictures.picture_id) != 'integer'",  # a damaged row is replaced
-                (robot_sysid, victim_id, picture_id, now_unix_s, jpeg),
+                (robot_sysid, victim_id, str(kind), picture_id, now_unix_s, jpeg),
             )
         return cur.rowcount == 1
 
-    def picture_id(self, robot_sysid: int, victim_id: int) -> int | None:
-        """The stored picture's number for this robot's victim, None without one."""
+    def picture_id(
+        self, robot_sysid: int, victim_id: int, kind: Sensor = Sensor.COLOUR
+    ) -> int | None:
+        """The stored picture's number for this robot's victim and kind, None without one."""
         row = self._db.execute(
-            "SELECT picture_id FROM pictures WHERE robot_sysid=? AND victim_id=?",
-            (robot_sysid, victim_id),
+            "SELECT picture_id FROM pictures WHERE robot_sysid=? AND victim_id=? AND kind=?",
+            (robot_sysid, victim_id, str(kind)),
         ).fetchone()
         if row is None:
             return None
         try:
             return registry_rows.cell_int(row[0])
         except BadRecord as exc:  # unusable: a new picture replaces it
-            self._bad_row(f"pictures robot {robot_sysid} victim {victim_id}", exc)
+            self._bad_row(registry_rows.picture_row(robot_sysid, victim_id, kind), exc)
             return None
 
-    def picture_versions(self) -> dict[tuple[int, int], tuple[int, float]]:
-        """(picture_id, received time) of every stored picture by (robot, victim)."""
+    def picture_versions(self) -> dict[registry_rows.PictureKey, tuple[int, float]]:
+        """(picture_id, received time) of every stored picture by (robot, victim, kind)."""
         return registry_rows.picture_versions(self._db, self._bad_row)
 
-    def picture(self, robot_sysid: int, victim_id: int) -> bytes | None:
+    def picture(
+        self, robot_sysid: int, victim_id: int, kind: Sensor = Sensor.COLOUR
+    ) -> bytes | None:
         """The stored JPEG, None without one or when the row is unusable (said once)."""
-        return registry_rows.picture(self._db, self._bad_row, robot_sysid, victim_id)
+        return registry_rows.picture(self._db, self._bad_row, robot_sysid, victim_id, kind)
 
     def data_version(self) -> int:
         """Changes whenever another connection commits (cheap; see PRAGMA data_version)."""

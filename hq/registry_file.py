@@ -7,7 +7,8 @@ Tables:
     hq_victims  HQ victim IDs (a group of sources: one person seen by several robots)
     robots      every robot heard (sysid), its last status and its EKF origin
     actions     operator actions (rescued, false alarm), their action_seq and ack time
-    pictures    the newest evidence picture (JPEG) of each (robot, victim_id)
+    pictures    the newest evidence picture (JPEG) of each (robot, victim_id, kind): kind
+                ``colour`` or ``thermal`` (the camera that took it; fusion.types.Sensor)
     operator_notes  the operator's notes on HQ victims (hq.web.notes); moved with the
                 person when the robot merges that victim into another (hq.registry)
 
@@ -34,11 +35,26 @@ from hq.errors import HqError
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 3  # 2: actions.ack_result; 3: pictures
-# From version: SQL. The pictures table of version 3 is created by _SCHEMA itself.
+SCHEMA_VERSION = 4  # 2: actions.ack_result; 3: pictures; 4: pictures.kind
+_PICTURES = """CREATE TABLE IF NOT EXISTS pictures (
+    robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL,
+    kind TEXT NOT NULL DEFAULT 'colour',
+    picture_id INTEGER NOT NULL, received_unix_s REAL NOT NULL, jpeg BLOB NOT NULL,
+    PRIMARY KEY (robot_sysid, victim_id, kind)
+)"""
+# From version: SQL. The pictures table of version 3 is created by _SCHEMA itself;
+# version 4 makes it again keyed by kind too: the pictures it held are colour ones.
 _MIGRATIONS: dict[int, tuple[str, ...]] = {
     1: ("ALTER TABLE actions ADD COLUMN ack_result INTEGER",),
     2: (),
+    3: (
+        "ALTER TABLE pictures RENAME TO pictures_v3",
+        _PICTURES,
+        "INSERT INTO pictures (robot_sysid, victim_id, kind, picture_id, received_unix_s, jpeg)"
+        " SELECT robot_sysid, victim_id, 'colour', picture_id, received_unix_s, jpeg"
+        " FROM pictures_v3",
+        "DROP TABLE pictures_v3",
+    ),
 }
 
 _SCHEMA = """
@@ -71,11 +87,6 @@ CREATE TABLE IF NOT EXISTS actions (
     robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL, action INTEGER NOT NULL,
     created_unix_s REAL NOT NULL, sent_count INTEGER NOT NULL DEFAULT 0,
     last_sent_unix_s REAL, acked_unix_s REAL, ack_result INTEGER
-);
-CREATE TABLE IF NOT EXISTS pictures (
-    robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL,
-    picture_id INTEGER NOT NULL, received_unix_s REAL NOT NULL, jpeg BLOB NOT NULL,
-    PRIMARY KEY (robot_sysid, victim_id)
 );
 """
 NOTES_SCHEMA = (
@@ -146,6 +157,7 @@ def _setup(db: sqlite3.Connection, path: Path) -> int:
         for statement in _SCHEMA.split(";"):
             if statement.strip():
                 db.execute(statement)
+        db.execute(_PICTURES)
         db.execute(NOTES_SCHEMA)
         row = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
         version = None if row is None else _meta_int(row[0], "schema_version", path)

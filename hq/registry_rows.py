@@ -12,7 +12,7 @@ import math
 import sqlite3
 from collections.abc import Callable
 
-from fusion.types import GlobalOrigin
+from fusion.types import GlobalOrigin, Sensor
 from hq.records import (
     Action,
     BadRecord,
@@ -26,6 +26,7 @@ from hq.records import (
 )
 
 BadRow = Callable[[str, Exception], None]  # (which row, what is wrong with it)
+PictureKey = tuple[int, int, Sensor]  # (robot sysid, robot's victim ID, the camera)
 
 
 def cell_int(value: object) -> int:
@@ -49,20 +50,36 @@ def cell_optional_float(value: object) -> float | None:
     return None if value is None else cell_float(value)
 
 
+def picture_row(robot: object, victim: object, kind: object = Sensor.COLOUR) -> str:
+    """How a picture row is named when it is unusable (a colour one as before kinds)."""
+    return f"pictures robot {robot} victim {victim}" + ("" if kind == Sensor.COLOUR else f" {kind}")
+
+
+def cell_kind(value: object) -> Sensor:
+    """A picture's kind as the registry writes it (``colour``, ``thermal``)."""
+    if isinstance(value, str) and value in set(Sensor):
+        return Sensor(value)
+    raise BadRecord(f"picture kind {value!r} is not one of colour, thermal")
+
+
 def picture(
-    db: sqlite3.Connection, bad_row: BadRow, robot_sysid: int, victim_id: int
+    db: sqlite3.Connection,
+    bad_row: BadRow,
+    robot_sysid: int,
+    victim_id: int,
+    kind: Sensor = Sensor.COLOUR,
 ) -> bytes | None:
     """The stored JPEG, None without one or when the row is unusable."""
     row = db.execute(
-        "SELECT jpeg FROM pictures WHERE robot_sysid=? AND victim_id=?",
-        (robot_sysid, victim_id),
+        "SELECT jpeg FROM pictures WHERE robot_sysid=? AND victim_id=? AND kind=?",
+        (robot_sysid, victim_id, str(kind)),
     ).fetchone()
     if row is None:
         return None
     try:
         return check_picture(row[0])
     except BadRecord as exc:
-        bad_row(f"pictures robot {robot_sysid} victim {victim_id}", exc)
+        bad_row(picture_row(robot_sysid, victim_id, kind), exc)
         return None
 
 
@@ -165,17 +182,17 @@ def default_origin(db: sqlite3.Connection, bad_row: BadRow) -> GlobalOrigin | No
 
 def picture_versions(
     db: sqlite3.Connection, bad_row: BadRow
-) -> dict[tuple[int, int], tuple[int, float]]:
-    """(picture_id, received time) of every usable stored picture by (robot, victim)."""
+) -> dict[PictureKey, tuple[int, float]]:
+    """(picture_id, received time) of every usable stored picture by (robot, victim, kind)."""
     rows = db.execute(
-        "SELECT robot_sysid, victim_id, picture_id, received_unix_s FROM pictures"
+        "SELECT robot_sysid, victim_id, kind, picture_id, received_unix_s FROM pictures"
     ).fetchall()
     out = {}
-    for r, v, p, t in rows:
+    for r, v, k, p, t in rows:
         try:
-            out[(cell_int(r), cell_int(v))] = (cell_int(p), cell_float(t))
+            out[(cell_int(r), cell_int(v), cell_kind(k))] = (cell_int(p), cell_float(t))
         except BadRecord as exc:
-            bad_row(f"pictures robot {r} victim {v}", exc)
+            bad_row(picture_row(r, v, k), exc)
     return out
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from hqproc import HqProcess, ack_for, hq_starter
 
+from fusion.types import Sensor
 from hq.pictures import PictureAssembler
 from hq.registry import Registry
 from hq.simrobot import SimRobot
@@ -100,7 +101,7 @@ def test_a_picture_in_chunks_is_stored_acknowledged_and_served(start_hq, tunnel:
     assert hq.stop() == 0
     with Registry(hq.db) as reg:
         assert reg.picture(3, 7) == data
-        assert reg.picture_versions()[(3, 7)][0] == 50
+        assert reg.picture_versions()[(3, 7, Sensor.COLOUR)][0] == 50
 
 
 def test_bad_chunks_are_refused_with_a_line_and_the_hq_goes_on(start_hq) -> None:
@@ -157,9 +158,89 @@ def test_a_version_2_registry_gains_the_pictures_table(tmp_path: Path) -> None:
         assert not reg.store_picture(1, 2, 3, _jpeg(100), 0.0)  # this very one
         assert reg.picture(1, 2) == _jpeg(100)
     db = sqlite3.connect(path, isolation_level=None)
-    assert db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "3"
+    assert db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "4"
     db.execute("UPDATE pictures SET jpeg = x'00'")  # damaged on disk
     db.close()
     with Registry(path) as reg:
         assert reg.picture(1, 2) is None  # skipped, said once
         assert "pictures robot 1 victim 2" in next(iter(reg.bad_rows))
+
+
+def test_a_version_3_registry_keeps_its_pictures_as_colour_ones(tmp_path: Path) -> None:
+    """A registry written before pictures had a kind: its pictures are the colour
+    camera's, and a thermal picture of the same victim is kept beside them."""
+    path = tmp_path / "v3.sqlite"
+    Registry(path).close()
+    db = sqlite3.connect(path, isolation_level=None)
+    db.execute("DROP TABLE pictures")
+    db.execute(  # exactly what version 3 wrote
+        "CREATE TABLE pictures (robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL,"
+        " picture_id INTEGER NOT NULL, received_unix_s REAL NOT NULL, jpeg BLOB NOT NULL,"
+        " PRIMARY KEY (robot_sysid, victim_id))"
+    )
+    db.execute("INSERT INTO pictures VALUES (1, 2, 30, 1.7e9, ?)", (_jpeg(120),))
+    db.execute("INSERT INTO pictures VALUES (1, 5, 31, 1.7e9, x'00')")  # damaged before
+    db.execute("UPDATE meta SET value='3' WHERE key='schema_version'")
+    db.close()
+    with Registry(path) as reg:
+        assert reg.picture(1, 2) == _jpeg(120)
+        assert reg.picture_id(1, 2, Sensor.COLOUR) == 30
+        assert reg.picture(1, 2, Sensor.THERMAL) is None
+        assert reg.store_picture(1, 2, 32, _jpeg(90, 3), 1.7e9 + 1, Sensor.THERMAL)
+        assert not reg.store_picture(1, 2, 31, _jpeg(90, 4), 1.7e9 + 2, Sensor.THERMAL)  # older
+        assert reg.picture(1, 2, Sensor.THERMAL) == _jpeg(90, 3)
+        assert reg.picture(1, 2) == _jpeg(120)  # the colour one stays
+        assert set(reg.picture_versions()) == {
+            (1, 2, Sensor.COLOUR), (1, 2, Sensor.THERMAL), (1, 5, Sensor.COLOUR)
+        }  # fmt: skip
+        assert reg.picture(1, 5) is None and "victim 5" in " ".join(reg.bad_rows)
+    db = sqlite3.connect(path, isolation_level=None)
+    assert db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "4"
+    db.execute("UPDATE pictures SET kind='infrared' WHERE kind='thermal'")  # edited by hand
+    db.close()
+    with Registry(path) as reg:
+        assert (1, 2, Sensor.THERMAL) not in reg.picture_versions()
+        assert any("infrared" in row for row in reg.bad_rows)
+
+
+def test_a_thermal_picture_beside_the_colour_one_at_a_real_hq(start_hq) -> None:
+    hq: HqProcess = start_hq("--web", "127.0.0.1:0")
+    url = hq.wait_line("console on", 15.0).split("console on ", 1)[1].strip()
+    colour, thermal = _jpeg(900, 1), _jpeg(700, 2)
+    with SimRobot(3, hq.address, tunnel=True) as robot:
+        m = robot.codec.module
+        report = robot.report_msg(robot.victim(7, 2.0, 1.0))
+        robot.send(report)
+        assert ack_for(robot, report.report_seq).result == 0
+        for pid, data, kind in ((40, colour, Sensor.COLOUR), (41, thermal, Sensor.THERMAL)):
+            chunks = picture.split(pid, 7, data, kind)
+            for c in chunks[:-1]:
+                robot.send(c.to_msg(m))
+            robot.send(chunks[-1].asking().to_msg(m))
+            assert _picture_ack(robot, pid).result == STORED
+        assert "thermal picture robot 3 victim 7 #41" in hq.wait_line("thermal picture", 5.0)
+        # A newer colour picture does not replace the thermal one, nor the reverse.
+        chunks = picture.split(42, 7, _jpeg(500, 3))
+        for c in chunks[:-1]:
+            robot.send(c.to_msg(m))
+        robot.send(chunks[-1].asking().to_msg(m))
+        assert _picture_ack(robot, 42).result == STORED
+        # An older thermal one is not wanted: REJECTED.
+        robot.send(picture.split(39, 7, _jpeg(300, 5), Sensor.THERMAL)[0].asking().to_msg(m))
+        assert _picture_ack(robot, 39).result == REJECTED
+        deadline = time.monotonic() + 10.0
+        while True:
+            state = json.loads(_get(url + "api/state")[1])
+            card = state["victims"][0] if state["victims"] else {}
+            if card.get("thermal_picture") and card.get("picture", "").endswith("-42"):
+                break
+            assert time.monotonic() < deadline, state
+            time.sleep(0.2)
+        assert card["picture"] == f"/victims/{card['id']}/picture?v=3-7-42"
+        assert card["thermal_picture"] == f"/victims/{card['id']}/picture?kind=thermal&v=3-7-41"
+        assert _get(url + card["thermal_picture"].lstrip("/"))[:2] == (200, thermal)
+        assert _get(url + card["picture"].lstrip("/"))[:2] == (200, _jpeg(500, 3))
+        status, body, _ = _get(url + f"victims/{card['id']}/picture?kind=sonar")
+        assert status == 400 and b"colour or thermal" in body
+    assert hq.stop() == 0
+    assert not any("Traceback" in line for line in hq.stderr), hq.stderr

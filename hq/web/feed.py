@@ -32,11 +32,12 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any, TypeVar
 
+from fusion.types import Sensor
 from hq.merge import Origins
 from hq.records import Action, BadRecord, Robot, Source, report_from_payload
 from hq.registry import Registry
 from hq.registry_file import RegistryError
-from hq.registry_rows import cell_float, cell_int
+from hq.registry_rows import PictureKey, cell_float, cell_int
 from hq.view import HqVictim, build, hq_victims
 from hq.web.notes import Notes
 from hq.web.state import LiveRobots, Note, Page, actions_by_source, robots_lost, victim_actions
@@ -58,44 +59,49 @@ _SOURCE_COLUMNS = (
 )
 
 
-def picture_versions(registry: Registry, victims: list[HqVictim]) -> dict[int, str]:
-    """The version of each HQ victim's evidence picture (the newest received among
-    its robots' pictures): ``robot-victim-picture_id``, so a better picture is a new
-    address and the browser fetches it."""
+def picture_versions(registry: Registry, victims: list[HqVictim]) -> dict[int, dict[Sensor, str]]:
+    """The version of each HQ victim's evidence pictures, per kind (the colour and the
+    thermal camera's view; of each the newest received among its robots' pictures):
+    ``robot-victim-picture_id``, so a better picture is a new address and the browser
+    fetches it."""
     return picture_versions_of(registry.picture_versions(), victims)
 
 
 def picture_versions_of(
-    stored: dict[SourceKey, tuple[int, float]], victims: list[HqVictim]
-) -> dict[int, str]:
+    stored: dict[PictureKey, tuple[int, float]], victims: list[HqVictim]
+) -> dict[int, dict[Sensor, str]]:
     """``picture_versions`` from the stored pictures' (picture_id, received time)."""
-    out: dict[int, str] = {}
+    out: dict[int, dict[Sensor, str]] = {}
     for v in victims:
-        held = [(stored[s][1], s, stored[s][0]) for s in v.sources if s in stored]
-        if held:
-            _, (robot, victim_id), picture_id = max(held)
-            out[v.hq_id] = f"{robot}-{victim_id}-{picture_id}"
+        for kind in Sensor:
+            held = [
+                (stored[k][1], k, stored[k][0])
+                for k in ((r, i, kind) for r, i in v.sources)
+                if k in stored
+            ]
+            if held:
+                _, (robot, victim_id, _kind), picture_id = max(held)
+                out.setdefault(v.hq_id, {})[kind] = f"{robot}-{victim_id}-{picture_id}"
     return out
 
 
-def picture_job(hq_id: int, version: str | None) -> Job[bytes | None]:
-    """The JPEG of an HQ victim's picture: the version asked for when given (and
-    still one of its robots'), else the newest; None when there is none."""
+def picture_job(hq_id: int, version: str | None, kind: Sensor = Sensor.COLOUR) -> Job[bytes | None]:
+    """The JPEG of an HQ victim's picture of this kind: the version asked for when
+    given (and still one of its robots'), else the newest; None when there is none."""
 
     def job(registry: Registry, _notes: Notes) -> bytes | None:
         victim = next((v for v in hq_victims(registry) if v.hq_id == hq_id), None)
         if victim is None:
             return None
-        versions = picture_versions(registry, [victim])
-        key = versions.get(hq_id)
+        key = picture_versions(registry, [victim]).get(hq_id, {}).get(kind)
         if key is None:
             return None
         if version is not None:
             robot, victim_id, _ = (int(x) for x in version.split("-"))
             if (robot, victim_id) in victim.sources:
-                return registry.picture(robot, victim_id)
+                return registry.picture(robot, victim_id, kind)
         robot, victim_id, _ = (int(x) for x in key.split("-"))
-        return registry.picture(robot, victim_id)
+        return registry.picture(robot, victim_id, kind)
 
     return job
 
@@ -143,7 +149,7 @@ class Changes:
         self._sources: dict[SourceKey, Source] = {}
         self._actions: dict[SourceKey, list[Action]] = {}
         self._notes: dict[int, list[Note]] = {}
-        self._pictures: dict[SourceKey, tuple[int, float]] = {}
+        self._pictures: dict[PictureKey, tuple[int, float]] = {}
         self._origins: Origins | None = None
         self._dirty: set[int] = set()  # found changed, not yet rebuilt
         self.victims_built = 0  # HQ victims rebuilt in all (what the incremental saves)
@@ -171,9 +177,9 @@ class Changes:
                 dirty.add(hq_id)
         self._notes = by_victim
         pictures = registry.picture_versions()
-        for key in set(pictures) | set(self._pictures):
-            if pictures.get(key) != self._pictures.get(key):
-                dirty |= self._hq_ids(key)
+        for shot in set(pictures) | set(self._pictures):
+            if pictures.get(shot) != self._pictures.get(shot):
+                dirty |= self._hq_ids((shot[0], shot[1]))
         self._pictures = pictures
         if dirty:
             self._rebuild(dirty, page)
@@ -243,7 +249,7 @@ class Changes:
                 v,
                 victim_actions(v, self._actions),
                 self._notes.get(v.hq_id, []),
-                pictures.get(v.hq_id),
+                pictures.get(v.hq_id, {}),
             )
         self.victims_built += len(victims)
         for hq_id in dirty - {v.hq_id for v in victims}:

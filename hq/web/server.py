@@ -47,6 +47,7 @@ from starlette.responses import (
 from starlette.routing import Route
 from starlette.types import Receive, Scope, Send
 
+from fusion.types import Sensor
 from hq.errors import HqError
 from hq.records import OperatorAction
 from hq.registry import Registry
@@ -344,13 +345,23 @@ class Console:
         version = request.query_params.get("v")
         if version is not None and not _PICTURE_VERSION.fullmatch(version):
             return JSONResponse({"error": f"bad picture version {version[:40]!r}"}, 400)
+        kind_text = request.query_params.get("kind", str(Sensor.COLOUR))
         try:
-            jpeg = await self._run(picture_job(hq_id, version))
+            kind = Sensor(kind_text)
+        except ValueError:
+            return JSONResponse(
+                {"error": f"bad picture kind {kind_text[:40]!r}: colour or thermal"}, 400
+            )
+        try:
+            jpeg = await self._run(picture_job(hq_id, version, kind))
         except RegistryError as exc:
             return JSONResponse({"error": f"cannot read the registry: {exc}"}, 503)
         if jpeg is None:
             return JSONResponse(
-                {"error": f"no evidence picture for victim {hq_id}: no robot has sent one yet"},
+                {
+                    "error": f"no {kind} evidence picture for victim {hq_id}:"
+                    " no robot has sent one yet"
+                },
                 status_code=404,
             )
         # A version names one picture for good: the browser may keep it. The bytes

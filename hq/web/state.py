@@ -23,7 +23,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from fusion.types import TrackState
+from fusion.types import Sensor, TrackState
 from hq.records import ACK_RESULT_REJECTED, Action, Robot, RobotStatus, cue_words
 from hq.view import HqVictim
 
@@ -170,8 +170,16 @@ def _why_refused(a: Action) -> str:
     )
 
 
+def _picture_url(hq_id: int, kind: Sensor, version: str | None) -> str | None:
+    if version is None:
+        return None
+    if kind is Sensor.COLOUR:
+        return f"/victims/{hq_id}/picture?v={version}"
+    return f"/victims/{hq_id}/picture?kind={kind}&v={version}"
+
+
 def _victim(
-    v: HqVictim, actions: list[Action], notes: list[Note], picture: str | None
+    v: HqVictim, actions: list[Action], notes: list[Note], pictures: Mapping[Sensor, str]
 ) -> dict[str, Any]:
     return {
         "id": v.hq_id,
@@ -196,7 +204,8 @@ def _victim(
         "actions_pending": v.actions_pending,
         "actions": [_action(a) for a in actions],
         "notes": [{"text": n.text, "created_unix_s": n.created_unix_s} for n in notes],
-        "picture": f"/victims/{v.hq_id}/picture?v={picture}" if picture else None,
+        "picture": _picture_url(v.hq_id, Sensor.COLOUR, pictures.get(Sensor.COLOUR)),
+        "thermal_picture": _picture_url(v.hq_id, Sensor.THERMAL, pictures.get(Sensor.THERMAL)),
     }
 
 
@@ -258,10 +267,15 @@ class Page:
         return set(self._victims)
 
     def set_victim(
-        self, v: HqVictim, actions: list[Action], notes: list[Note], picture: str | None
+        self,
+        v: HqVictim,
+        actions: list[Action],
+        notes: list[Note],
+        pictures: Mapping[Sensor, str],
     ) -> None:
-        """(Re)place one victim's entry; ``actions`` in action_seq order."""
-        self._victims[v.hq_id] = (_sort_key(v), _dumps(_victim(v, actions, notes, picture)))
+        """(Re)place one victim's entry; ``actions`` in action_seq order; ``pictures``
+        the version of its evidence picture of each kind it has."""
+        self._victims[v.hq_id] = (_sort_key(v), _dumps(_victim(v, actions, notes, pictures)))
         self._order = None
 
     def drop_victim(self, hq_id: int) -> None:
@@ -332,7 +346,7 @@ def snapshot(
     actions: list[Action],
     notes: list[Note],
     tracks: dict[int, RobotTrack],
-    pictures: dict[int, str],
+    pictures: Mapping[int, Mapping[Sensor, str]],
     now_unix_s: float,
     link_timeout_s: float,
 ) -> dict[str, Any]:
@@ -344,7 +358,7 @@ def snapshot(
     page = Page()
     for v in victims:
         page.set_victim(
-            v, victim_actions(v, by_source), by_victim.get(v.hq_id, []), pictures.get(v.hq_id)
+            v, victim_actions(v, by_source), by_victim.get(v.hq_id, []), pictures.get(v.hq_id, {})
         )
     page.set_robots(robots, tracks, now_unix_s, link_timeout_s)
     return dict(json.loads(page.json(now_unix_s, link_timeout_s)))

@@ -292,7 +292,9 @@ function makeCard(id) {
   });
   noteForm.addEventListener("click", (ev) => ev.stopPropagation());
   card.append(
-    el("div", { class: "picture" }),
+    el("div", { class: "pics" },
+      el("div", { class: "picture colour" }),
+      el("div", { class: "picture thermal", hidden: "" })),
     el("div", { class: "body" },
       el("div", { class: "title" }),
       el("div", { class: "facts" }),
@@ -320,7 +322,21 @@ function fillCard(card, v) {
   card.classList.toggle("selected", v.id === selectedId);
   card.dataset.state = v.state;
   card.dataset.urgency = v.urgency;
-  const pic = card.querySelector(".picture");
+  const pic = card.querySelector(".picture.colour");
+  const warm = card.querySelector(".picture.thermal");
+  if (v.thermal_picture) {
+    if (warm.dataset.src !== v.thermal_picture) {
+      warm.replaceChildren(el("a", { href: v.thermal_picture, target: "_blank", title: "the thermal camera's view (false colour, with its temperature scale): open it full size" },
+        el("img", { src: v.thermal_picture, alt: `thermal picture of victim ${v.id}` })));
+      warm.dataset.src = v.thermal_picture;
+    }
+    warm.hidden = false;
+  } else {
+    warm.replaceChildren();
+    warm.dataset.src = "";
+    warm.hidden = true;
+  }
+  card.querySelector(".pics").classList.toggle("two", Boolean(v.thermal_picture));
   if (v.picture) {
     if (pic.dataset.src !== v.picture) {
       pic.replaceChildren(el("a", { href: v.picture, target: "_blank", title: "the robot's evidence picture: open it full size" },
