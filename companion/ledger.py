@@ -133,7 +133,9 @@ class Ledger:
                     self._outbox.stage(msg)  # in this transaction; scheduled after it
                 for c in candidates:
                     seq += 1
-                    p = StoredPicture(c.victim_id, seq, c.score, c.taken_unix_s, c.jpeg)
+                    p = StoredPicture(
+                        c.victim_id, seq, c.score, c.taken_unix_s, c.jpeg, kind=c.kind
+                    )
                     self._store.put_picture(p)
                     pictures.append((c, p))
                 self._store.set("tracker", self._tracker.snapshot())
@@ -167,7 +169,8 @@ class Ledger:
             self._chooser.keep(c)
             self._picture_sender.offer(p)
             log.info(
-                "picture %d of victim %d: %d bytes, score %.3f",
+                "%s picture %d of victim %d: %d bytes, score %.3f",
+                p.kind,
                 p.picture_id,
                 p.victim_id,
                 len(p.jpeg),

@@ -15,9 +15,16 @@ boxes drawn, scaled to ``width_px`` and encoded as a JPEG of at most ``max_bytes
 (lower quality first, then a smaller scale). The ledger (companion/ledger.py)
 commits it with the frame's state and calls ``keep`` after the commit.
 
+A victim the thermal camera sees gets a second picture, its thermal view, chosen
+the same way among the thermal frames (``consider_thermal``: the sharpness of the
+crop's temperatures scaled to its colour range): the crop in false colour
+(companion.vision.thermal_picture, as ``detect --annotate`` draws it), enlarged to
+``width_px`` with whole sensor pixels, the box drawn, its temperature scale beside
+it. Each kind (fusion.types.Sensor) is kept and replaced on its own.
+
 ``PictureSender`` (reporter thread) sends the kept pictures that the HQ does not
-have, one at a time, oldest first (a newer picture of the victim being sent
-replaces it), as mavlink_io.picture transfers. A token bucket bounds the bytes a
+have, one at a time, oldest first (a newer picture of the victim, of the same kind,
+being sent replaces it), as mavlink_io.picture transfers. A token bucket bounds the bytes a
 second (``rate_bytes_s``, the frames as they leave on the radio: a chunk in TUNNEL
 is 132 bytes, 158 signed); the reporter only calls ``poll`` after the reports due
 went, so pictures use what is left. The processing thread hands pictures over with
@@ -40,9 +47,11 @@ import cv2
 import numpy as np
 
 from companion.config import PicturesConfig
+from companion.sources.thermal import ThermalFrame
 from companion.store import Store, StoredPicture, StoreError
+from companion.vision.thermal_picture import colour_range_c, thermal_picture
 from fusion.registry import Victim
-from fusion.types import Detection, Observation, TrackState, Urgency
+from fusion.types import Detection, Observation, Sensor, TrackState, Urgency
 from mavlink_io import picture
 
 log = logging.getLogger(__name__)
@@ -115,10 +124,45 @@ def render(
     colour = _BGR[victim.urgency]
     cv2.rectangle(crop, (bx - x0, by - y0), (bx + bw - x0, by + bh - y0), colour, 2)
     scale = min(1.0, width_px / crop.shape[1]) if crop.shape[1] > width_px else 1.0
+    return _encode(crop, scale, f"V{victim.victim_id} {victim.urgency.name}", colour, max_bytes)
+
+
+def render_thermal(
+    temps_c: np.ndarray,
+    target: Detection,
+    others: Sequence[Detection],
+    victim: Victim,
+    width_px: int,
+    max_bytes: int,
+) -> bytes:
+    """The JPEG of the victim's thermal view: the crop in false colour, enlarged to at
+    least ``width_px`` in whole sensor pixels, boxes drawn, the temperature scale on
+    the right; at most ``max_bytes`` (smaller when it must; ValueError when even the
+    smallest does not fit)."""
+    h, w = temps_c.shape
+    x0, y0, x1, y1 = crop_box(target.bbox_xywh_px, w, h)
+    colour = _BGR[victim.urgency]
+    boxes = [
+        ((d.bbox_xywh_px[0] - x0, d.bbox_xywh_px[1] - y0, *d.bbox_xywh_px[2:]), "", _OTHER_BGR)
+        for d in others
+    ]
+    bx, by, bw, bh = target.bbox_xywh_px
+    peak = float(temps_c[by : by + bh, bx : bx + bw].max()) if bw > 0 and bh > 0 else float("nan")
+    label = f"{peak:.1f}C" if math.isfinite(peak) else ""
+    boxes.append(((bx - x0, by - y0, bw, bh), label, colour))
+    view = thermal_picture(temps_c[y0:y1, x0:x1], boxes, min_width_px=width_px)
+    label = f"V{victim.victim_id} {victim.urgency.name} warm"
+    return _encode(view, 1.0, label, colour, max_bytes)
+
+
+def _encode(
+    view: np.ndarray, scale: float, label: str, colour: tuple[int, int, int], max_bytes: int
+) -> bytes:
+    """The JPEG of ``view`` with ``label``, at ``scale`` or smaller, of at most ``max_bytes``."""
     while True:
-        size = (max(1, round(crop.shape[1] * scale)), max(1, round(crop.shape[0] * scale)))
-        small = cv2.resize(crop, size, interpolation=cv2.INTER_AREA) if scale != 1.0 else crop
-        label = f"V{victim.victim_id} {victim.urgency.name}"
+        size = (max(1, round(view.shape[1] * scale)), max(1, round(view.shape[0] * scale)))
+        small = cv2.resize(view, size, interpolation=cv2.INTER_AREA) if scale != 1.0 else view
+        small = small.copy()
         cv2.putText(small, label, (3, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3)
         cv2.putText(small, label, (3, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.4, colour, 1)
         for quality in _QUALITIES:
@@ -126,7 +170,7 @@ def render(
             if ok and len(buf) <= max_bytes:
                 return bytes(buf)
         if size[0] <= _MIN_WIDTH_PX:
-            raise ValueError(f"no JPEG of victim {victim.victim_id} fits {max_bytes} bytes")
+            raise ValueError(f"no JPEG of {label} fits {max_bytes} bytes")
         scale *= _SHRINK
 
 
@@ -138,6 +182,7 @@ class Candidate:
     score: float
     taken_unix_s: float
     jpeg: bytes
+    kind: Sensor = Sensor.COLOUR
 
 
 def _d2(victim: Victim, obs: Observation) -> float:
@@ -174,11 +219,11 @@ def match(
 
 
 class PictureChooser:
-    """Keeps each victim's best view. Owned by the processing thread."""
+    """Keeps each victim's best view of each kind. Owned by the processing thread."""
 
     def __init__(self, cfg: PicturesConfig, kept: Sequence[StoredPicture] = ()) -> None:
         self.cfg = cfg
-        self._kept = {p.victim_id: (p.score, p.taken_unix_s) for p in kept}
+        self._kept = {(p.victim_id, p.kind): (p.score, p.taken_unix_s) for p in kept}
         self.rendered = 0
         self.too_big = 0
 
@@ -189,34 +234,73 @@ class PictureChooser:
         victims: Sequence[Victim],
         now_unix_s: float,
     ) -> list[Candidate]:
-        """New pictures this frame gives (not yet kept: call ``keep`` after the commit)."""
+        """New colour pictures this frame gives (not yet kept: call ``keep`` after the commit)."""
+
+        def crop_grey(region: np.ndarray) -> np.ndarray:
+            return region if region.ndim == 2 else cv2.cvtColor(region, cv2.COLOR_BGR2GRAY)
+
+        return self._choose(image, located, victims, now_unix_s, Sensor.COLOUR, crop_grey, render)
+
+    def consider_thermal(
+        self,
+        frame: ThermalFrame,
+        located: Sequence[tuple[Detection, Observation]],
+        victims: Sequence[Victim],
+    ) -> list[Candidate]:
+        """New thermal pictures this thermal frame gives (call ``keep`` after the commit)."""
+        lo, hi = colour_range_c(frame.temps_c)
+
+        def crop_grey(region: np.ndarray) -> np.ndarray:
+            # The temperatures on the picture's colour scale: sharpness in its grey levels.
+            return np.clip((region - lo) * (255.0 / (hi - lo)), 0.0, 255.0).astype(np.uint8)
+
+        return self._choose(
+            frame.temps_c,
+            located,
+            victims,
+            frame.t_unix_s,
+            Sensor.THERMAL,
+            crop_grey,
+            render_thermal,
+        )
+
+    def _choose(
+        self,
+        image: np.ndarray,
+        located: Sequence[tuple[Detection, Observation]],
+        victims: Sequence[Victim],
+        now_unix_s: float,
+        kind: Sensor,
+        crop_grey: Callable[[np.ndarray], np.ndarray],
+        draw: Callable[[np.ndarray, Detection, Sequence[Detection], Victim, int, int], bytes],
+    ) -> list[Candidate]:
         out = []
         detections = [d for d, _ in located]
         for victim, det, obs in match(victims, located):
-            kept = self._kept.get(victim.victim_id)
+            kept = self._kept.get((victim.victim_id, kind))
             if kept is not None and now_unix_s - kept[1] < self.cfg.min_interval_s:
                 continue
             x0, y0, x1, y1 = crop_box(det.bbox_xywh_px, image.shape[1], image.shape[0])
-            region = image[y0:y1, x0:x1]
-            gray = region if region.ndim == 2 else cv2.cvtColor(region, cv2.COLOR_BGR2GRAY)
-            score = view_score(det.score, obs.visibility_pct, sharpness(gray))
+            score = view_score(
+                det.score, obs.visibility_pct, sharpness(crop_grey(image[y0:y1, x0:x1]))
+            )
             if not math.isfinite(score) or score <= 0.0:
                 continue
             if kept is not None and score <= kept[0] * (1.0 + self.cfg.min_gain):
                 continue
             others = [d for d in detections if d is not det]
             try:
-                jpeg = render(image, det, others, victim, self.cfg.width_px, self.cfg.max_bytes)
+                jpeg = draw(image, det, others, victim, self.cfg.width_px, self.cfg.max_bytes)
             except ValueError as exc:
                 self.too_big += 1
                 log.debug("%s", exc)
                 continue
             self.rendered += 1
-            out.append(Candidate(victim.victim_id, score, now_unix_s, jpeg))
+            out.append(Candidate(victim.victim_id, score, now_unix_s, jpeg, kind))
         return out
 
     def keep(self, c: Candidate) -> None:
-        self._kept[c.victim_id] = (c.score, c.taken_unix_s)
+        self._kept[(c.victim_id, c.kind)] = (c.score, c.taken_unix_s)
 
 
 @dataclass
@@ -248,7 +332,7 @@ class PictureSender:
         self._signed = signed
         self._clock = clock
         self._lock = threading.Lock()
-        self._waiting: dict[int, StoredPicture] = {}  # by victim
+        self._waiting: dict[tuple[int, Sensor], StoredPicture] = {}  # by victim and kind
         self._current: picture.Transfer | None = None
         self._started_s = 0.0  # when the current transfer began
         # Never two chunks at once (the bucket holds less than two): a report waits
@@ -265,11 +349,12 @@ class PictureSender:
             return len(self._waiting) + (1 if self._current is not None else 0)
 
     def offer(self, p: StoredPicture) -> None:
-        """Send ``p`` (replacing a waiting or unfinished older picture of its victim)."""
+        """Send ``p`` (replacing a waiting or unfinished older picture of its victim
+        and kind)."""
         with self._lock:
-            held = self._waiting.get(p.victim_id)
+            held = self._waiting.get((p.victim_id, p.kind))
             if held is None or held.picture_id < p.picture_id:
-                self._waiting[p.victim_id] = p
+                self._waiting[(p.victim_id, p.kind)] = p
                 self.counters.offered += 1
 
     def on_ack(self, ack: picture.Ack) -> None:
@@ -285,7 +370,8 @@ class PictureSender:
         if t.result == picture.RESULT_STORED:
             self.counters.delivered += 1
             log.info(
-                "picture %d of victim %d delivered in %.1f s (%d bytes, %d chunks sent for %d)",
+                "%s picture %d of victim %d delivered in %.1f s (%d bytes, %d chunks sent for %d)",
+                t.kind,
                 t.picture_id,
                 t.victim_id,
                 self._clock() - self._started_s,
@@ -302,7 +388,7 @@ class PictureSender:
         with self._lock:
             cur = self._current
             if cur is not None:
-                newer = self._waiting.get(cur.victim_id)
+                newer = self._waiting.get((cur.victim_id, cur.kind))
                 if newer is None or newer.picture_id <= cur.picture_id:
                     return cur
                 self.counters.replaced += 1
@@ -310,8 +396,10 @@ class PictureSender:
                 return None
             else:
                 newer = min(self._waiting.values(), key=lambda p: p.picture_id)
-            del self._waiting[newer.victim_id]
-        self._current = picture.Transfer(newer.picture_id, newer.victim_id, newer.jpeg)
+            del self._waiting[(newer.victim_id, newer.kind)]
+        self._current = picture.Transfer(
+            newer.picture_id, newer.victim_id, newer.jpeg, kind=newer.kind
+        )
         self._started_s = self._clock()
         return self._current
 

@@ -3,7 +3,8 @@
 Each iteration answers what the ground asked (companion/ground.py), reports the
 victims again when the EKF origin becomes known (or changes), then takes the newest
 frame from the camera's one-slot mailbox: pipeline (enhance, detect, geolocate,
-track, decide reports), the live video's shot, the evidence pictures, and a commit
+track, decide reports), the live video's shot, the evidence pictures (a thermal
+frame: the thermal camera's view of each warm victim), and a commit
 (companion/ledger.py) when there is news or the periodic save is due; then it pings
 the systemd watchdog (also when no frame came).
 
@@ -135,8 +136,13 @@ class Processing:
             if isinstance(frame, ThermalFrame):
                 outcome = self._pipeline.process_thermal(frame, self._vehicle.poses)
                 self._count_victims()
-                if outcome.decisions or (outcome.events and time.monotonic() - last_save > 0.5):
-                    self._ledger.commit(outcome.decisions)
+                candidates = self._choose_thermal_pictures(frame, outcome)
+                if (
+                    outcome.decisions
+                    or candidates
+                    or (outcome.events and time.monotonic() - last_save > 0.5)
+                ):
+                    self._ledger.commit(outcome.decisions, candidates)
                     last_save = time.monotonic()
             elif frame is not None:
                 outcome = self._pipeline.process(frame, self._vehicle.poses)
@@ -164,6 +170,14 @@ class Processing:
         return self._chooser.consider(
             frame.image, outcome.located, self._tracker.victims(), frame.t_unix_s
         )
+
+    def _choose_thermal_pictures(
+        self, frame: ThermalFrame, outcome: FrameOutcome
+    ) -> list[Candidate]:
+        """A warm victim's thermal evidence picture, chosen as the colour one is."""
+        if not (self._config.pictures.enabled and outcome.located):
+            return []
+        return self._chooser.consider_thermal(frame, outcome.located, self._tracker.victims())
 
     def _offer_video(self, frame: Frame, outcome: FrameOutcome) -> None:
         streamer = self._video.streamer

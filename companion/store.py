@@ -7,7 +7,8 @@ What survives a crash or ``kill -9``:
 - the outbox of dialect messages not yet acknowledged by the HQ
   (mavlink_io.reliable.OutboxStore);
 - each victim's evidence picture (the JPEG, its score and number) and whether the
-  HQ has it (companion/pictures.py).
+  HQ has it (companion/pictures.py); its thermal picture likewise, in a table of its
+  own (``thermal_pictures``: a state file from before it simply gains the table).
 
 The processing thread writes a frame's consequences in one transaction
 (``with store.transaction(durable=True): ...``) *before* anything is sent, so what
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.errors import CompanionError
+from fusion.types import Sensor
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +52,16 @@ CREATE TABLE IF NOT EXISTS pictures (
     jpeg BLOB NOT NULL,
     delivered INTEGER NOT NULL DEFAULT 0
 );
+CREATE TABLE IF NOT EXISTS thermal_pictures (
+    victim_id INTEGER PRIMARY KEY,
+    picture_id INTEGER NOT NULL,
+    score REAL NOT NULL,
+    taken_unix_s REAL NOT NULL,
+    jpeg BLOB NOT NULL,
+    delivered INTEGER NOT NULL DEFAULT 0
+);
 """
+_PICTURE_TABLES = {Sensor.COLOUR: "pictures", Sensor.THERMAL: "thermal_pictures"}
 
 
 @dataclass(frozen=True)
@@ -63,6 +74,7 @@ class StoredPicture:
     taken_unix_s: float
     jpeg: bytes
     delivered: bool = False
+    kind: Sensor = Sensor.COLOUR  # the colour or the thermal camera's view
 
 
 class StoreError(CompanionError):
@@ -254,33 +266,40 @@ class Store:
     # -- evidence pictures ---------------------------------------------------------------
 
     def put_picture(self, p: StoredPicture) -> None:
-        """Keep ``p`` as its victim's picture (replacing an older one), not delivered."""
+        """Keep ``p`` as its victim's picture of its kind (replacing an older one), not
+        delivered."""
         with self.transaction():
             self._write(
-                "INSERT OR REPLACE INTO pictures (victim_id, picture_id, score, taken_unix_s,"
-                " jpeg, delivered) VALUES (?, ?, ?, ?, ?, 0)",
+                f"INSERT OR REPLACE INTO {_PICTURE_TABLES[p.kind]} (victim_id, picture_id,"
+                " score, taken_unix_s, jpeg, delivered) VALUES (?, ?, ?, ?, ?, 0)",
                 (p.victim_id, p.picture_id, p.score, p.taken_unix_s, p.jpeg),
             )
 
     def picture_delivered(self, victim_id: int, picture_id: int) -> None:
+        """The HQ has picture ``picture_id`` (of either kind: the numbers are unique)."""
         with self.transaction():
-            self._write(
-                "UPDATE pictures SET delivered = 1 WHERE victim_id = ? AND picture_id = ?",
-                (victim_id, picture_id),
-            )
+            for table in _PICTURE_TABLES.values():
+                self._write(
+                    f"UPDATE {table} SET delivered = 1 WHERE victim_id = ? AND picture_id = ?",
+                    (victim_id, picture_id),
+                )
 
     def pictures(self) -> list[StoredPicture]:
-        with self._lock:
-            rows = self._usable(
-                "pictures",
-                _USABLE_PICTURE,
-                "victim_id, picture_id, score, taken_unix_s, jpeg, delivered",
-                "picture_id",
-            )
-        return [
-            StoredPicture(int(v), int(p), float(s), float(t), bytes(j), bool(d))
-            for v, p, s, t, j, d in rows
-        ]
+        """Every usable kept picture of both kinds, by picture_id."""
+        out = []
+        for kind, table in _PICTURE_TABLES.items():
+            with self._lock:
+                rows = self._usable(
+                    table,
+                    _USABLE_PICTURE,
+                    "victim_id, picture_id, score, taken_unix_s, jpeg, delivered",
+                    "picture_id",
+                )
+            out += [
+                StoredPicture(int(v), int(p), float(s), float(t), bytes(j), bool(d), kind)
+                for v, p, s, t, j, d in rows
+            ]
+        return sorted(out, key=lambda p: p.picture_id)
 
     def _usable(self, table: str, usable: str, columns: str, order: str) -> list[Any]:
         """The rows of ``table`` whose cells have the types and ranges this program

@@ -16,10 +16,13 @@ from companion.pictures import (
     PictureSender,
     chunk_wire_bytes,
     match,
+    resume,
 )
+from companion.sources.thermal import ThermalFrame
 from companion.store import Store, StoredPicture
+from companion.vision.thermal_picture import SCALE_BAR_PX
 from fusion.registry import Victim
-from fusion.types import Detection, Observation, TrackState, Urgency
+from fusion.types import Detection, Observation, Sensor, TrackState, Urgency
 from mavlink_io import picture
 
 BOX = (260, 180, 120, 90)  # x, y, w, h of the victim in a 640x480 frame
@@ -188,3 +191,101 @@ def test_chunk_wire_bytes_is_what_the_tunnel_frame_takes(signed: bool) -> None:
             assert len(frame) <= chunk_wire_bytes(len(chunk.data), signed)
             sizes.add(len(frame))
         assert max(sizes) == chunk_wire_bytes(len(chunk.data), signed)
+
+
+# -- the thermal view ------------------------------------------------------------------
+
+T_BOX = (60, 50, 40, 24)  # x, y, w, h of a warm body in a 160x120 thermal frame
+
+
+def _thermal(sharp: bool, t_unix_s: float = 110.0, seed: int = 3) -> ThermalFrame:
+    """Floor at about 19 °C with a little texture and a body at 31-34 °C; blurred as
+    a Lepton's view is when the rover shakes."""
+    rng = np.random.default_rng(seed)
+    temps = (19.0 + rng.random((120, 160)) * 0.6).astype(np.float32)
+    x, y, w, h = T_BOX
+    temps[y : y + h, x : x + w] = 31.0 + rng.random((h, w)).astype(np.float32) * 3.0
+    if not sharp:
+        temps = cv2.GaussianBlur(temps, (9, 9), 3)
+    return ThermalFrame(temps, 1.0, t_unix_s, 1)
+
+
+def _warm_located(score: float = 0.8) -> tuple[Detection, Observation]:
+    x, y, w, h = T_BOX
+    det = Detection(
+        0.0, x + w / 2, y + h / 2, T_BOX, w * h, score, cues=("warm",), source="thermal"
+    )
+    obs = Observation(110.0, 5.1, 1.0, ((0.04, 0.0), (0.0, 0.04)), 40.0, score, 4.0)
+    return det, obs
+
+
+def test_a_warm_victim_gets_a_false_colour_thermal_picture_with_its_scale() -> None:
+    cfg = PicturesConfig(max_bytes=6000, width_px=240)
+    chooser = PictureChooser(cfg)
+    (c,) = chooser.consider_thermal(_thermal(True), [_warm_located()], [_victim()])
+    assert c.kind is Sensor.THERMAL and c.victim_id == 3 and c.taken_unix_s == 110.0
+    assert 500 < len(c.jpeg) <= 6000
+    img = cv2.imdecode(np.frombuffer(c.jpeg, np.uint8), cv2.IMREAD_COLOR)
+    # The box (40 px) with 24 px of context each side, in whole sensor pixels (x3),
+    # and the temperature scale bar beside it.
+    assert img.shape[1] == 88 * 3 + SCALE_BAR_PX and img.shape[0] == 72 * 3
+    b, r = img[..., 0].astype(int), img[..., 2].astype(int)
+    body = (slice(24 * 3 + 6, 48 * 3 - 6), slice(24 * 3 + 6, 64 * 3 - 6))
+    floor = (slice(72 * 3 - 20, 72 * 3 - 4), slice(4, 40))
+    assert r[body].mean() > 150 and r[floor].mean() < 80  # inferno: warm bright, cold dark
+    assert abs(r - b).mean() > 20  # false colour, not grey
+    bar = img[:, -SCALE_BAR_PX:]
+    assert bar[30:-20, 8:20, 2].mean() > 60  # the colour ramp is drawn
+    # The colour picture of the same victim is chosen on its own: both are kept.
+    (colour,) = chooser.consider(_frame(True), [_located()], [_victim()], 110.0)
+    assert colour.kind is Sensor.COLOUR
+    chooser.keep(c)
+    chooser.keep(colour)
+    # A blurred thermal view later is no better; a sharper one after a blurred one is.
+    assert chooser.consider_thermal(_thermal(False, 130.0), [_warm_located()], [_victim()]) == []
+    blurred_first = PictureChooser(cfg)
+    (first,) = blurred_first.consider_thermal(_thermal(False), [_warm_located()], [_victim()])
+    blurred_first.keep(first)
+    (better,) = blurred_first.consider_thermal(
+        _thermal(True, 125.0), [_warm_located()], [_victim()]
+    )
+    assert better.score > first.score * 1.25
+
+
+def test_both_kinds_are_stored_resumed_and_sent_without_replacing_each_other(
+    tmp_path: Path,
+) -> None:
+    store = Store(tmp_path / "s.sqlite")
+    store.put_picture(StoredPicture(3, 41, 1.0, 100.0, _jpeg(400)))
+    store.put_picture(StoredPicture(3, 42, 0.5, 101.0, _jpeg(300), kind=Sensor.THERMAL))
+    store.close()
+    store = Store(tmp_path / "s.sqlite")
+    kept = store.pictures()
+    assert [(p.picture_id, p.kind) for p in kept] == [(41, Sensor.COLOUR), (42, Sensor.THERMAL)]
+    store.picture_delivered(3, 42)
+    assert [p.delivered for p in store.pictures()] == [False, True]
+    # Restarted: the chooser knows the thermal view too, and only the undelivered
+    # colour picture is offered again.
+    sent: list[picture.Chunk] = []
+    chooser, sender = resume(
+        PicturesConfig(rate_bytes_s=100_000.0), store, sent.append, signed=False
+    )
+    assert chooser.consider_thermal(_thermal(True, 105.0), [_warm_located()], [_victim()]) == []
+    assert sender.pending == 1
+    store.close()
+    clock = _Clock()
+    sent.clear()
+    sender = PictureSender(
+        PicturesConfig(rate_bytes_s=100_000.0), sent.append, lambda *a: None, clock=clock
+    )
+    sender.offer(StoredPicture(3, 50, 1.0, 0.0, _jpeg(300)))
+    sender.offer(StoredPicture(3, 51, 1.0, 0.0, _jpeg(200), kind=Sensor.THERMAL))
+    assert sender.pending == 2  # one of each kind: neither replaces the other
+    for _ in range(20):
+        sender.poll()
+        for pid in {c.picture_id for c in sent if c.ack_request}:
+            sender.on_ack(picture.Ack(pid, picture.RESULT_STORED, bytes(32)))
+        clock.t += 0.5
+    kinds = {c.picture_id: c.kind for c in sent}
+    assert kinds == {50: Sensor.COLOUR, 51: Sensor.THERMAL}
+    assert sender.counters.delivered == 2 and sender.counters.replaced == 0
