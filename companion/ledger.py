@@ -11,7 +11,8 @@ applied operator action, is durable (synchronous=FULL): a power cut cannot undo
 what the HQ may have heard. The ledger also keeps the newest operator action
 applied to each victim (by the HQ's action_seq), saved with the tracker, so an
 older action that arrives late is never applied over a newer one
-(companion/ground.py), across restarts too.
+(companion/ground.py), across restarts too. The coverage grid (where the robot has
+looked, companion/coverage.py) is saved in the same commits, when it changed.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from companion.announcements import Announcer
 from companion.pictures import Candidate, PictureChooser, PictureSender
 from companion.reporting import Decision, ReportPolicy
 from companion.store import Store, StoredPicture, StoreError
+from fusion.coverage import CoverageError, CoverageGrid
 from fusion.tracker import VictimTracker
 from mavlink_io import convert
 from mavlink_io.reliable import Outbox
@@ -35,6 +37,7 @@ from mavlink_io.vehicle import VehicleLink
 log = logging.getLogger(__name__)
 
 APPLIED_ACTIONS_KEY = "applied_actions"  # {victim ID: action_seq of the newest applied}
+COVERAGE_KEY = "coverage"  # fusion.coverage snapshot: where the robot has looked
 _MAX_ACTION_SEQ = 0xFFFFFFFF  # RESCUE_OPERATOR_ACTION.action_seq is a uint32
 
 
@@ -80,6 +83,8 @@ class Ledger:
         self._store_failing = False
         self.applied_actions = _applied_actions(store)
         self._actions_unsaved = False
+        self.coverage = load_coverage(store)  # the processing thread adds its looks
+        self._coverage_saved = self.coverage.version
 
     def applied_action(self, victim_id: int) -> int | None:
         """The action_seq of the newest operator action applied to this victim."""
@@ -145,6 +150,9 @@ class Ledger:
                     self._store.set(
                         APPLIED_ACTIONS_KEY, {str(v): a for v, a in self.applied_actions.items()}
                     )
+                coverage_version = self.coverage.version
+                if coverage_version != self._coverage_saved:  # saved only when it changed
+                    self._store.set(COVERAGE_KEY, self.coverage.snapshot())
         except StoreError as exc:
             self._outbox.discard()
             if not self._store_failing:
@@ -162,6 +170,7 @@ class Ledger:
             raise
         self.report_seq = seq
         self._actions_unsaved = False
+        self._coverage_saved = coverage_version
         saved = len(self._unsaved)
         self._unsaved.clear()
         self._outbox.publish()  # committed: now the reporter may send them
@@ -212,3 +221,25 @@ def _applied_actions(store: Store) -> dict[int, int]:
                 str(seq)[:20],
             )
     return out
+
+
+def load_coverage(store: Store) -> CoverageGrid:
+    """The coverage grid as saved (companion/coverage.py adds to it), or an empty one;
+    a saved grid that cannot be used (a damaged or hand-edited file) is said in one
+    line and the mission's map starts again empty: the victims are kept regardless."""
+    try:
+        saved: Any = store.get(COVERAGE_KEY)
+        if saved is None:
+            return CoverageGrid()
+        grid = CoverageGrid.restore(saved)
+    except (CoverageError, StoreError) as exc:
+        log.warning(
+            "%s: saved %s unusable, the map starts empty: %s", store.path, COVERAGE_KEY, exc
+        )
+        return CoverageGrid()
+    log.info(
+        "coverage restored: %d looks, %.0f m2 looked at",
+        grid.looks,
+        grid.summary().looked_at_m2,
+    )
+    return grid

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from companion.capture import FrameMailbox
 from companion.config import Config
+from companion.coverage import CoverageMapper
 from companion.ground import Ground
 from companion.ledger import Ledger
 from companion.livevideo import LiveVideo
@@ -109,6 +110,11 @@ class Processing:
         self._stop = stop
         self._origin: GlobalOrigin | None = None  # the origin reports were last made with
         self.counts = (0, 0)  # confirmed, tentative (written by processing, read by reporter)
+        thermal = pipeline.thermal.camera if pipeline.thermal is not None else None
+        # Each frame's footprint goes into the ledger's grid, saved with its commits.
+        self.coverage = CoverageMapper(
+            ledger.coverage, config.geolocation, pipeline.camera, thermal
+        )
         self._count_victims()  # the restored ones, before any thread runs
 
     @property
@@ -135,6 +141,7 @@ class Processing:
                 frame = None
             if isinstance(frame, ThermalFrame):
                 outcome = self._pipeline.process_thermal(frame, self._vehicle.poses)
+                self.coverage.add(outcome.pose, outcome.sensor)
                 self._count_victims()
                 candidates = self._choose_thermal_pictures(frame, outcome)
                 if (
@@ -146,6 +153,7 @@ class Processing:
                     last_save = time.monotonic()
             elif frame is not None:
                 outcome = self._pipeline.process(frame, self._vehicle.poses)
+                self.coverage.add(outcome.pose, outcome.sensor, frame.image)
                 self._after_frame(outcome)
                 self._offer_video(frame, outcome)
                 candidates = self._choose_pictures(frame, outcome)
