@@ -9,7 +9,8 @@ the same checks as a frame on a direct link.
 ``TUNNEL_PAYLOAD_TYPE`` = 32800: the range 32768-65535 is for private experiments
 (MAV_TUNNEL_PAYLOAD_TYPE); 32800 is this project's. A frame longer than the 128-byte
 TUNNEL payload cannot be carried (every RESCUE_* message fits: a signed
-RESCUE_VICTIM_REPORT is 107 bytes, a signed RESCUE_PICTURE_CHUNK exactly 128).
+RESCUE_VICTIM_REPORT is at most 108 bytes with its cues, a signed RESCUE_PICTURE_CHUNK
+exactly 128).
 """
 
 from __future__ import annotations
