@@ -7,7 +7,13 @@
                             unless ``thermal`` is off
     DIR/camera.toml         the [camera] (and [thermal]) config the frames were rendered with
     DIR/world.toml          the world
-    DIR/ground_truth.json   victims (position, urgency, visibility, first sight), route
+    DIR/ground_truth.json   victims (position, urgency, visibility, first sight), route;
+                            with the thermal camera also each victim's
+                            warm_visibility_pct (skin and clothing under no opaque
+                            debris) and first_warm_in_view_unix_s (its warmth on at
+                            least MIN_WARM_VIEW_PX thermal pixels; the scorer takes
+                            the earlier of the two cameras), and a "thermal" section
+                            (frames, flat-field frames, warm objects)
 
 The rover's streams are those a companion asks for (its VehicleConfig rates:
 ATTITUDE and LOCAL_POSITION_NED at 20 Hz, GLOBAL_POSITION_INT at 5 Hz) plus
