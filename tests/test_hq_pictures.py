@@ -244,3 +244,76 @@ def test_a_thermal_picture_beside_the_colour_one_at_a_real_hq(start_hq) -> None:
         assert status == 400 and b"colour or thermal" in body
     assert hq.stop() == 0
     assert not any("Traceback" in line for line in hq.stderr), hq.stderr
+
+
+def test_the_companions_thermal_picture_is_chosen_sent_and_delivered_to_a_real_hq(
+    start_hq, tmp_path: Path
+) -> None:
+    """The companion's chooser picks a warm victim's thermal view and its colour view,
+    its store keeps both, its sender sends both through TUNNEL at its rate, and the
+    real rescue-hq stores each as its kind and serves it; the sender hears STORED."""
+    import cv2
+    import numpy as np
+
+    from companion.config import PicturesConfig
+    from companion.pictures import resume
+    from companion.sources.thermal import ThermalFrame
+    from companion.store import Store, StoredPicture
+    from fusion.registry import Victim
+    from fusion.types import Detection, Observation, TrackState, Urgency
+
+    hq: HqProcess = start_hq("--web", "127.0.0.1:0")
+    url = hq.wait_line("console on", 15.0).split("console on ", 1)[1].strip()
+    victim = Victim(
+        victim_id=7, state=TrackState.CONFIRMED, urgency=Urgency.CRITICAL, visibility_pct=6.0,
+        north_m=2.0, east_m=1.0, cov_ne_m2=((0.09, 0.0), (0.0, 0.09)), observations=9,
+        first_seen_unix_s=100.0, last_seen_unix_s=110.0, log_odds=3.0, merged_into=None,
+    )  # fmt: skip
+    obs = Observation(110.0, 2.05, 1.0, ((0.04, 0.0), (0.0, 0.04)), 6.0, 0.8, 4.0)
+    rng = np.random.default_rng(5)
+    temps = (18.0 + rng.random((120, 160)) * 0.5).astype(np.float32)
+    temps[40:58, 70:84] = 33.5  # a head and a hand out of the rubble
+    warm = Detection(0.0, 77.0, 49.0, (70, 40, 14, 18), 252.0, 0.8, source="thermal")
+    image = cv2.resize(
+        (rng.random((120, 160, 3)) * 255).astype(np.uint8), (640, 480), interpolation=0
+    )
+    seen = Detection(0.0, 300.0, 260.0, (260, 180, 80, 80), 3200.0, 0.7)
+    store = Store(tmp_path / "companion.sqlite")
+    cfg = PicturesConfig(rate_bytes_s=20_000.0)
+    with SimRobot(3, hq.address, tunnel=True) as robot:
+        report = robot.report_msg(robot.victim(7, 2.0, 1.0, urgency=Urgency.CRITICAL))
+        robot.send(report)
+        assert ack_for(robot, report.report_seq).result == 0
+        m = robot.codec.module
+        chooser, sender = resume(cfg, store, lambda c: robot.send(c.to_msg(m)), signed=False)
+        (thermal,) = chooser.consider_thermal(
+            ThermalFrame(temps, 1.0, 110.0, 1), [(warm, obs)], [victim]
+        )
+        (colour,) = chooser.consider(image, [(seen, obs)], [victim], 110.0)
+        for pid, c in ((20, colour), (21, thermal)):
+            p = StoredPicture(7, pid, c.score, c.taken_unix_s, c.jpeg, kind=c.kind)
+            store.put_picture(p)
+            sender.offer(p)
+        deadline = time.monotonic() + 20.0
+        while sender.counters.delivered < 2:
+            assert time.monotonic() < deadline, sender.counters
+            sender.poll()
+            for rx in robot.receive(0.05):
+                if rx.msg.get_type() == "RESCUE_PICTURE_ACK":
+                    sender.on_ack(picture.Ack.from_msg(rx.msg))
+    assert [p.delivered for p in store.pictures()] == [True, True]
+    store.close()
+    deadline = time.monotonic() + 10.0
+    while True:
+        state = json.loads(_get(url + "api/state")[1])
+        card = state["victims"][0]
+        if card["picture"] and card["thermal_picture"]:
+            break
+        assert time.monotonic() < deadline, state
+        time.sleep(0.2)
+    assert _get(url + card["thermal_picture"].lstrip("/"))[:2] == (200, thermal.jpeg)
+    assert _get(url + card["picture"].lstrip("/"))[:2] == (200, colour.jpeg)
+    assert hq.stop() == 0
+    with Registry(hq.db) as reg:
+        assert reg.picture(3, 7, Sensor.THERMAL) == thermal.jpeg
+        assert reg.picture(3, 7) == colour.jpeg
