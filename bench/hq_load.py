@@ -9,8 +9,9 @@ RESCUE_ACK. The run alternates four rounds: console closed (no page, no request)
 and console open (one SSE client reading every state as a browser would, and a
 GET /api/state every 2 s). Target: the open console costs the acks less than 2x
 at the median. Memory: rescue-hq's resident set (VmRSS) sampled every 5 s over
-the whole run; target flat (the last minute's median within 10 % of the first
-full minute's). The run lasts RESCUE_BENCH_HQ_LOAD_S seconds (default 600, the
+the whole run; target flat: the first open console adds its page state (the
+1000 victims as JSON and as records), after which the rounds' medians stay
+within a few percent. The run lasts RESCUE_BENCH_HQ_LOAD_S seconds (default 600, the
 10 minutes of the target; a shorter run for a quick look). rescue-hq, the robots
 and the clients share the one core the bench is pinned to.
 """
