@@ -24,9 +24,12 @@ Pure but for OpenCV's resize of the luma; owned by the processing thread.
 
 from __future__ import annotations
 
+import base64
 import functools
 import math
+import zlib
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -225,7 +228,7 @@ class CoverageMapper:
         """Add one processed frame (its pose, None when it had none; the colour
         frame's image for its light). Returns the cells it added (0 for a frame from
         the same viewpoint as the camera's last counted look)."""
-        if pose is None or not self._new_viewpoint(pose, sensor):
+        if pose is None or not self.new_viewpoint(pose, sensor):
             return 0
         if sensor == Sensor.THERMAL:
             if self.thermal_camera is None:
@@ -239,10 +242,36 @@ class CoverageMapper:
         self._last[sensor] = _Viewpoint(pose.north_m, pose.east_m, pose.yaw_rad)
         return self.grid.add_look(look.cells, look.p)
 
-    def _new_viewpoint(self, pose: PoseSample, sensor: Sensor) -> bool:
+    def new_viewpoint(self, pose: PoseSample, sensor: Sensor) -> bool:
+        """Whether a look from ``pose`` counts: the first of this camera, or moved or
+        turned enough since its last counted look."""
         last = self._last.get(sensor)
         if last is None:
             return True
         moved = math.hypot(pose.north_m - last.north_m, pose.east_m - last.east_m)
         turn = abs((pose.yaw_rad - last.yaw_rad + math.pi) % (2.0 * math.pi) - math.pi)
         return moved >= self.min_move_m or math.degrees(turn) >= self.min_turn_deg
+
+
+def coverage_document(grid: CoverageGrid) -> dict[str, Any]:
+    """The grid for a JSON document (``rescue-companion replay``, docs/REPLAY.md):
+    its cells' quantised probabilities (0..255, p = p_q / 255) as one zlib-compressed
+    base64 array, rows north from ``origin_index``, and its summary figures."""
+    summary = grid.summary()
+    return {
+        "cell_m": grid.cell_m,
+        "origin_index": list(grid.origin_index),
+        "shape": list(grid.shape),
+        "p_q": base64.b64encode(zlib.compress(grid.quantised().tobytes(), 9)).decode("ascii"),
+        "looks": grid.looks,
+        "looked_at_m2": round(summary.looked_at_m2, 3),
+        "glanced_at_m2": round(summary.glanced_at_m2, 3),
+        "searched_well_m2": round(summary.searched_well_m2, 3),
+    }
+
+
+def p_of_document(doc: dict[str, Any]) -> NDArray[np.float64]:
+    """The probabilities per cell of a ``coverage_document`` (rows north)."""
+    rows, cols = doc["shape"]
+    raw = zlib.decompress(base64.b64decode(doc["p_q"]))
+    return np.frombuffer(raw, np.uint8).reshape(rows, cols).astype(float) / 255.0

@@ -1,5 +1,7 @@
 """A mission map PNG: the route, and victims coloured by urgency with their
-uncertainty ellipses (2 sigma), north up, east right, a 1 m grid, a legend; for a
+uncertainty ellipses (2 sigma), north up, east right, a 1 m grid, a legend; under
+them, given a coverage grid, where the cameras looked (searched well, glanced at,
+looked at; fusion/coverage.py: it over-claims behind tall debris); for a
 simulated mission also the debris and the true victims, labelled, each joined to
 the centre of its uncovered part where that lies apart from the body's centre (a
 buried victim is found, and scored, where it shows)."""
@@ -7,13 +9,14 @@ buried victim is found, and scored, where it shows)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from fusion.coverage import GLANCED_AT_P, SEARCHED_WELL_P, CoverageGrid
 from fusion.registry import Victim
 from fusion.types import Cov2, TrackState, Urgency
 
@@ -29,6 +32,10 @@ _ROUTE_BGR = (150, 110, 60)
 _DEBRIS_BGR = (185, 185, 185)
 _TEXT_BGR = (30, 30, 30)
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
+# Coverage shades: searched well, glanced at, looked at (under everything else).
+_WELL_BGR = (170, 215, 160)
+_GLANCED_BGR = (205, 232, 200)
+_LOOKED_BGR = (232, 242, 230)
 
 
 @dataclass(frozen=True)
@@ -85,9 +92,12 @@ def draw_mission_map(
     truth: Sequence[MapTruth] = (),
     debris_ne_m: Sequence[np.ndarray] = (),
     extent_ne_m: tuple[float, float, float, float] | None = None,
+    coverage: CoverageGrid | None = None,
 ) -> None:
     """Write the map. ``extent_ne_m`` (n0, n1, e0, e1) fixes the area shown (a
-    simulated world's floor); by default it is what the route and victims span."""
+    simulated world's floor); by default it is what the route and victims span.
+    ``coverage``: its cells are shaded under everything by how well they were
+    searched, and the legend gives the areas."""
     if extent_ne_m is not None:
         n0, n1, e0, e1 = extent_ne_m
     else:
@@ -95,6 +105,7 @@ def draw_mission_map(
             list(route_ne_m)
             + [(v.north_m, v.east_m) for v in victims]
             + [(t.north_m, t.east_m) for t in truth]
+            + (_looked_corners(coverage) if coverage is not None else [])
         )
         if points:
             n = np.array([p[0] for p in points])
@@ -114,6 +125,8 @@ def draw_mission_map(
             int(img.shape[0] - _MARGIN_PX - (north_m - n0) * scale),
         )
 
+    if coverage is not None:
+        _draw_coverage(img, coverage, px)
     for k in range(math.ceil(e0), math.floor(e1) + 1):  # 1 m grid
         cv2.line(img, px(n0, k), px(n1, k), (228, 228, 228), 1)
     for k in range(math.ceil(n0), math.floor(n1) + 1):
@@ -157,7 +170,9 @@ def draw_mission_map(
     for text, (x, y), _at in place_labels(labels, markers, (0, 0, right_px, img.shape[0])):
         cv2.putText(img, text, (x, y), _FONT, 0.5, (250, 250, 250), 4, cv2.LINE_AA)  # halo
         cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
-    _legend(img, right_px + 20, bool(truth), bool(parts), bool(debris_ne_m))
+    y = _legend(img, right_px + 20, bool(truth), bool(parts), bool(debris_ne_m))
+    if coverage is not None:
+        _coverage_legend(img, right_px + 20, y, coverage)
     bar_px = int(scale)
     cv2.line(img, (20, img.shape[0] - 20), (20 + bar_px, img.shape[0] - 20), (0, 0, 0), 2)
     cv2.putText(img, "1 m", (20, img.shape[0] - 28), _FONT, 0.45, (0, 0, 0), 1)
@@ -227,7 +242,52 @@ def _overlap(a: Rect, b: Rect) -> int:
     return max(0, min(a[2], b[2]) - max(a[0], b[0])) * max(0, min(a[3], b[3]) - max(a[1], b[1]))
 
 
-def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool) -> None:
+def _looked_corners(grid: CoverageGrid) -> list[tuple[float, float]]:
+    """Two corners of the box of the cells looked at (none when none was)."""
+    rows, cols = np.nonzero(grid.probabilities() > 0)
+    if not len(rows):
+        return []
+    (n0, e0), s = grid.origin_index, grid.cell_m
+    return [
+        ((n0 + rows.min()) * s + 1.0, (e0 + cols.min()) * s + 1.0),  # the margin is added
+        ((n0 + rows.max() + 1) * s - 1.0, (e0 + cols.max() + 1) * s - 1.0),
+    ]
+
+
+def _draw_coverage(
+    img: np.ndarray, grid: CoverageGrid, px: Callable[[float, float], tuple[int, int]]
+) -> None:
+    """Each looked-at cell as a filled square, shaded by its probability."""
+    p = grid.probabilities()
+    (n0_idx, e0_idx), s = grid.origin_index, grid.cell_m
+    for threshold, colour in (
+        (0.0, _LOOKED_BGR),
+        (GLANCED_AT_P, _GLANCED_BGR),
+        (SEARCHED_WELL_P, _WELL_BGR),
+    ):
+        rows, cols = np.nonzero(p >= threshold if threshold > 0 else p > 0)
+        for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+            n, e = (n0_idx + r) * s, (e0_idx + c) * s
+            cv2.rectangle(img, px(n + s, e), px(n, e + s), colour, -1)
+
+
+def _coverage_legend(img: np.ndarray, x: int, y: int, grid: CoverageGrid) -> None:
+    summary = grid.summary()
+    rows = (
+        (_WELL_BGR, f"searched well {summary.searched_well_m2:.0f} m2"),
+        (_GLANCED_BGR, f"glanced at {summary.glanced_at_m2:.0f} m2"),
+        (_LOOKED_BGR, f"looked at {summary.looked_at_m2:.0f} m2"),
+    )
+    for colour, text in rows:
+        y += 26
+        cv2.rectangle(img, (x, y - 12), (x + 16, y + 2), colour, -1)
+        cv2.putText(img, text, (x + 22, y), _FONT, 0.45, _TEXT_BGR, 1)
+    y += 22
+    cv2.putText(img, "(over-claims behind", (x, y), _FONT, 0.4, _TEXT_BGR, 1)
+    cv2.putText(img, " tall debris)", (x, y + 16), _FONT, 0.4, _TEXT_BGR, 1)
+
+
+def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool) -> int:
     y = 30
     cv2.putText(img, "Legend", (x, y), _FONT, 0.55, _TEXT_BGR, 2, cv2.LINE_AA)
     for urgency, colour in URGENCY_BGR.items():
@@ -252,3 +312,4 @@ def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool) -> 
         y += 26
         cv2.rectangle(img, (x, y - 12), (x + 16, y + 2), _DEBRIS_BGR, -1)
         cv2.putText(img, "debris", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    return y

@@ -11,7 +11,8 @@ the arrival time), frames are processed in time order once the telemetry has run
 ``LOOKAHEAD_S`` past them (so the pose after the frame is known for interpolation),
 and the result is deterministic: no wall clock, no threads.
 
-Output: a JSON document (docs/REPLAY.md) and a mission map PNG beside it.
+Output: a JSON document (docs/REPLAY.md) and a mission map PNG beside it, both with
+where the cameras looked (the coverage grid, companion/coverage.py).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from typing import Any
 
 from companion.calibration import camera_model
 from companion.config import Config
+from companion.coverage import CoverageMapper, coverage_document
 from companion.missionmap import MapVictim, draw_mission_map
 from companion.pipeline import FrameOutcome, Pipeline, ThermalEye
 from companion.reporting import ReportPolicy
@@ -37,6 +39,7 @@ from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_folder import ThermalFramesDir
 from companion.vision import make_detector
 from companion.vision.thermal import ThermalDetector
+from fusion.coverage import CoverageGrid
 from fusion.pose import PoseHistory
 from fusion.registry import Victim
 from fusion.tracker import VictimTracker
@@ -81,6 +84,7 @@ class ReplayResult:
     route_ne_m: list[tuple[float, float]] = field(default_factory=list)
     floor_down_m: float = 0.0
     reports: list[ReplayReport] = field(default_factory=list)  # in the order decided
+    coverage: CoverageGrid = field(default_factory=CoverageGrid)  # where it has looked
 
 
 class _Telemetry:
@@ -229,6 +233,12 @@ def replay(
         ),
         thermal.eye if thermal is not None else None,
     )
+    coverage = CoverageMapper(
+        CoverageGrid(),
+        config.geolocation,
+        pipeline.camera,
+        thermal.eye.camera if thermal is not None else None,
+    )
     first_reported: dict[int, float] = {}
     reports: list[ReplayReport] = []
     total = len(source)
@@ -253,12 +263,16 @@ def replay(
             and (frame is None or thermal.next.t_unix_s < frame.t_unix_s)
         ):
             telemetry.advance_to(thermal.next.t_unix_s + LOOKAHEAD_S)
-            decided(pipeline.process_thermal(thermal.next, poses))
+            outcome = pipeline.process_thermal(thermal.next, poses)
+            coverage.add(outcome.pose, outcome.sensor)
+            decided(outcome)
             thermal.advance()
         if frame is None:
             break
         telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)
-        decided(pipeline.process(frame, poses))
+        outcome = pipeline.process(frame, poses)
+        coverage.add(outcome.pose, outcome.sensor, frame.image)
+        decided(outcome)
         _progress(frame.index + 1, total, len(tracker.victims()))
     telemetry.advance_to(float("inf"))
     source.close()
@@ -283,6 +297,7 @@ def replay(
         route_ne_m=telemetry.route,
         floor_down_m=telemetry.last_down_m + config.geolocation.floor_down_m,
         reports=reports,
+        coverage=coverage.grid,
     )
 
 
@@ -330,6 +345,7 @@ def result_document(result: ReplayResult) -> dict[str, Any]:
         "autopilot_reboots": result.reboots,
         "victims": victims,
         "merged": [{"victim_id": v.victim_id, "merged_into": v.merged_into} for v in result.merged],
+        "coverage": coverage_document(result.coverage),
     }
 
 
@@ -344,5 +360,7 @@ def write_outputs(result: ReplayResult, out_json: Path) -> Path:
     finally:
         tmp.unlink(missing_ok=True)
     png = out_json.with_suffix(".png")
-    draw_mission_map(png, result.route_ne_m, [MapVictim.of(v) for v in result.victims])
+    draw_mission_map(
+        png, result.route_ne_m, [MapVictim.of(v) for v in result.victims], coverage=result.coverage
+    )
     return png
