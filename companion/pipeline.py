@@ -143,11 +143,14 @@ class Pipeline:
         )
 
     def process_thermal(self, frame: ThermalFrame, poses: PoseHistory) -> FrameOutcome:
-        """Run one thermal frame (``thermal`` must be set) through the same tracker."""
+        """Run one thermal frame (``thermal`` must be set) through the same tracker. A
+        warm region cut by the frame's side is a body that may go on beyond it: its
+        floor point gets the same doubt across the ray as a colour one's."""
         if self.thermal is None:
             raise RuntimeError("process_thermal without a thermal camera")
         self.counters.thermal_frames += 1
         detector = self.thermal.detector
+        width_px = frame.temps_c.shape[1]
         return self._run(
             frame.t_mono_s,
             frame.t_unix_s,
@@ -156,7 +159,7 @@ class Pipeline:
             self._thermal_geo,
             self._thermal_miss_geo,
             lambda geometry: detector.detect(frame.temps_c, geometry, frame.t_mono_s),
-            lambda _det: False,
+            lambda det: det.bbox_xywh_px[0] <= 1 or sum(det.bbox_xywh_px[::2]) >= width_px - 1,
             Sensor.THERMAL,
         )
 

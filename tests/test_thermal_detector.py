@@ -191,10 +191,11 @@ def test_the_merge_gap_is_on_the_floor_not_in_pixels() -> None:
     _hand_at(t, geometry, 1.0, 0.13)  # about 38 pixels apart
     finds = ThermalDetector().analyse(t, geometry, 0.0).finds
     ranges = sorted(
-        round(float(geometry.floor_ne_m(np.array([[f.detection.u_px, f.detection.v_px]]))[0, 0]))
+        float(geometry.floor_ne_m(np.array([[f.detection.u_px, f.detection.v_px]]))[0, 0])
         for f in finds
     )
-    assert ranges == [1, 4, 4]  # the near pair one find, the far pair two
+    # The near pair one find, the far pair two; each placed where it meets the floor.
+    assert ranges == pytest.approx([1.0, 3.5, 3.5], abs=0.25)
     assert all(f.detection.cues == ("warm", "warm_part") for f in finds)
 
 
@@ -324,3 +325,21 @@ def test_a_frame_that_is_not_temperatures_is_refused(frame: np.ndarray) -> None:
 def test_each_setting_is_checked(change: dict[str, object], named: str) -> None:
     with pytest.raises(ValueError, match=named):
         ThermalDetectorParams(**change)  # type: ignore[arg-type]
+
+
+def test_a_person_filling_most_of_the_view_is_still_found_in_a_stream() -> None:
+    # The rover drives up to a person: after frames of bare floor, one fills 70 % of
+    # the view and lifts the frame's median to body temperature. The room did not
+    # warm: the ambient of the stream rises slowly, and the person is found.
+    detector = ThermalDetector()
+    geometry = _lepton_on_a_rover()
+    for i in range(5):
+        assert detector.analyse(_scene(seed=i), geometry, 0.1 * i).finds == []
+    close = _scene(seed=9)
+    close[36:120, 10:150] = 31.0  # a body 0.6 m away, across the view
+    close[60:80, 60:90] = 34.0  # a face
+    result = detector.analyse(close, geometry, 0.6)
+    assert result.ambient_c < 19.0
+    assert len(result.finds) == 1
+    # A photo (no stream) has only its own median: the same picture alone shows none.
+    assert ThermalDetector().analyse(close, None, 0.0).finds == []

@@ -106,7 +106,7 @@ def floor_pixel(
             enough = len(finite) >= N_BODY_POINTS // 2
             if enough:
                 heading = _heading(b, joints, p)
-            contact = _near_edge(b, geometry, h, p)
+            contact = _near_edge(b.mask, geometry, h, p)
             centre = _beyond_edge(contact, finite if enough else None, p)
             # A body mostly hidden (under debris, behind a wall) may go on beyond what
             # shows on any side, towards the camera too: it is placed where it shows.
@@ -127,7 +127,7 @@ def floor_pixel(
     elif b.part:
         centre = geometry.floor_ne_m(np.array([[(x0 + x1) / 2, min(y1, h) - 0.5]]))[0]
     else:
-        centre = _beyond_edge(_near_edge(b, geometry, h, p), None, p)
+        centre = _beyond_edge(_near_edge(b.mask, geometry, h, p), None, p)
         if not np.all(np.isfinite(centre)):
             centre = geometry.plane_ne_m(b.hip_px.reshape(1, 2), p.joint_height_m)[0]
     uv = _pixel(geometry, centre)
@@ -191,8 +191,27 @@ def _standing(points: np.ndarray, geometry: FrameGeometry, p: FloorParams) -> bo
     return upright_m > p.standing_height_m
 
 
+def blob_floor_pixel(
+    mask: np.ndarray, geometry: FrameGeometry, part: bool, p: FloorParams
+) -> tuple[float, float] | None:
+    """The floor point's pixel of a body seen as a region without landmarks (the
+    thermal camera's warm groups): its near edge and half a body's width beyond it,
+    or for a lone part (a hand, a face) where its region meets the floor. None where
+    the region has no near edge in view (its bottom cut by the frame) or no floor."""
+    h = mask.shape[0]
+    if part:
+        ys, xs = np.nonzero(mask)
+        if len(xs) == 0:
+            return None
+        bottom = float(min(int(ys.max()) + 1, h)) - 0.5
+        centre = geometry.floor_ne_m(np.array([[float(xs.mean()) + 0.5, bottom]]))[0]
+    else:
+        centre = _beyond_edge(_near_edge(mask, geometry, h, p), None, p)
+    return _pixel(geometry, centre)
+
+
 def _near_edge(
-    b: BodyLike, geometry: FrameGeometry, h: int, p: FloorParams
+    mask: np.ndarray, geometry: FrameGeometry, h: int, p: FloorParams
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Where the body meets the floor: its near edge and the unit view direction
     there (both NE metres), or None when the mask's bottom is cut by the frame.
@@ -203,7 +222,7 @@ def _near_edge(
     side meets the floor (``contact_height_m`` up): exact whatever the body's
     height.
     """
-    ys, xs = np.nonzero(b.mask)
+    ys, xs = np.nonzero(mask)
     if len(xs) == 0:
         return None
     bottom = np.full(int(xs.max()) + 1, -1)

@@ -4,7 +4,10 @@ One frame of temperatures (°C) becomes detections, each a person or a person's
 exposed parts:
 
 1. The ambient level is the frame's median temperature (most of a frame is floor,
-   walls, debris or water; a person rarely covers half of it). A pixel is warm when
+   walls, debris or water; a person rarely covers half of it). In a stream of frames
+   (the rover's camera) it may rise at most ``ambient_rise_k_per_s`` from one frame
+   to the next: a person the rover drives up to fills most of the view and lifts the
+   median to body temperature, a room does not warm that fast. A pixel is warm when
    it is ``min_contrast_k`` above it: a man in 7 °C water shows at most 27 °C; in a
    heat event a 45 °C background is warmer than the animals in it, which then show
    no warm pixel at all.
@@ -14,14 +17,20 @@ exposed parts:
    within ``merge_gap_m`` of a seed (on the floor, ``thermal_group``) join it (a head and two hands out of water are one
    person; the hands in cold water read 14-19 °C). A cluster with a pixel hotter than
    skin is machinery, hot water or a lamp: never a seed, never joined.
-3. Each group's size on the floor (from the geometry: the pixels' metres) tells a
-   hand, a face, a forearm (``part_max_area_m2``: cue ``warm_part``) from a torso or a
+3. Each group's size on the floor (from the geometry: the share of a whole lying
+   adult's pixels at its floor point, times that adult's 0.57 m²) tells a hand, a
+   face, a forearm (``part_max_area_m2``: cue ``warm_part``) from a torso or a
    body; smaller than ``min_area_m2`` or larger than ``max_area_m2`` it is no person.
    Large and flat (over ``flat_min_area_m2`` with a spread under ``flat_std_k``) is a
    heated surface. Less than ``min_floor_share`` of it on the floor (rays above the
    horizon or out of range) is above the floor, where a lying person cannot be.
 4. Over frames (``thermal_track``): a find whose excess over ambient keeps falling,
    seen at the same scale, is a warm imprint where a person lay, and is dropped.
+
+With a geometry a find's floor point is where the warm region meets the floor, not
+its centroid: from a camera 0.3 m up, warm skin and clothing 0.2 m above the floor
+project far beyond the body (companion/vision/floorpoint.py, ``blob_floor_pixel``:
+the near edge and half a body's width; for a lone part, where it meets the floor).
 
 Without a geometry (a photo) sizes are in pixels: a whole lying adult is taken to
 cover ``photo_body_share`` of the frame (``expected_area_px``) and the merge gap is
@@ -38,6 +47,7 @@ import cv2
 import numpy as np
 
 from companion.vision.base import DEFAULT_SILHOUETTE_FILL, FrameGeometry, VisionError
+from companion.vision.floorpoint import FloorParams, blob_floor_pixel
 from companion.vision.thermal_group import group_in_pixels, group_on_floor
 from companion.vision.thermal_params import ThermalDetectorParams
 from companion.vision.thermal_track import ThermalMemory
@@ -94,6 +104,24 @@ class ThermalDetector:
         self.params = params or ThermalDetectorParams()
         self.min_score = min_score
         self.memory = ThermalMemory(self.params)
+        self._floor = FloorParams()
+        self._ambient: tuple[float, float] | None = None  # (t_mono_s, level °C) of a stream
+
+    def _ambient_c(self, t: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float) -> float:
+        """The frame's ambient level; in a stream (frames with a geometry), its rise is
+        limited (see the module doc)."""
+        median = ambient_c(t)
+        if geometry is None:
+            return median
+        p = self.params
+        level = median
+        if self._ambient is not None:
+            t0, before = self._ambient
+            dt = t_mono_s - t0
+            if 0.0 <= dt <= p.ambient_reset_s:
+                level = min(median, before + p.ambient_rise_k_per_s * dt)
+        self._ambient = (t_mono_s, level)
+        return level
 
     def detect(
         self, temps_c: np.ndarray, geometry: FrameGeometry | None, t_mono_s: float
@@ -108,7 +136,7 @@ class ThermalDetector:
         if t.ndim != 2 or t.size == 0 or t.dtype.kind != "f":
             raise VisionError(f"thermal frame must be a 2-D float array, got {t.dtype} {t.shape}")
         p = self.params
-        amb = ambient_c(t)
+        amb = self._ambient_c(t, geometry, t_mono_s)
         result = ThermalResult(amb, float(t.min()), float(t.max()))
         warm = (t >= amb + p.min_contrast_k).astype(np.uint8)
         n, labels, stats, _ = cv2.connectedComponentsWithStats(warm, connectivity=8)
@@ -180,11 +208,23 @@ class ThermalDetector:
 
         area_m2: float | None = None
         expected: float | None = None
+        floor_uv: tuple[float, float] | None = None
         if geometry is not None:
-            area_m2, on_floor = _area_m2(geometry, u, vs + y0)
+            on_floor = _floor_share(geometry, u, vs + y0)
             if on_floor < p.min_floor_share or geometry.metres_per_px(u, v) is None:
                 return reject("above the floor or out of range")
-            area_m2 /= on_floor
+            mask = np.zeros(t.shape, bool)
+            mask[y0:y1, x0:x1] = roi
+            # Its size as the floor area of the share of a lying adult it shows: the
+            # pixels a whole body would cover where it lies (a 3-D body's side, as a
+            # low camera sees it), not its pixels' floor metres, which a body's upper
+            # surface seen near the horizon stretches to metres beyond it.
+            floor_uv = blob_floor_pixel(mask, geometry, False, self._floor)
+            fu, fv = floor_uv if floor_uv is not None else (u, float(y1) - 0.5)
+            whole_px = geometry.expected_body_area_px(fu, fv)
+            if whole_px is None:
+                return reject("above the floor or out of range")
+            area_m2 = area_px / whole_px * BODY_AREA_M2
             if area_m2 < p.min_area_m2:
                 return reject(f"{area_m2:.4f} m² is smaller than a hand")
             if area_m2 > p.max_area_m2:
@@ -209,6 +249,13 @@ class ThermalDetector:
         score = _score(peak, amb, p)
         if score < self.min_score:
             return reject(f"score {score:.2f} under min_score {self.min_score:.2f}")
+        if geometry is not None:
+            if part:  # a lone part lies where it meets the floor
+                mask = np.zeros(t.shape, bool)
+                mask[y0:y1, x0:x1] = roi
+                floor_uv = blob_floor_pixel(mask, geometry, True, self._floor)
+            if floor_uv is not None:
+                u, v = floor_uv
         cues = ("warm", "warm_part") if part else ("warm",)
         det = Detection(
             t_mono_s=t_mono_s,
@@ -228,19 +275,16 @@ def _box(stat: np.ndarray) -> tuple[int, int, int, int]:
     return (int(stat[0]), int(stat[1]), int(stat[2]), int(stat[3]))
 
 
-def _area_m2(geometry: FrameGeometry, u: float, vs: np.ndarray) -> tuple[float, float]:
-    """Floor area of a find's pixels (rows ``vs``) and the share of them on the floor:
-    each 8-row band's metres per pixel at the find's centre column, squared, times its
-    pixels (the scale changes with the row; FrameGeometry caches per 8x8 cell)."""
+def _floor_share(geometry: FrameGeometry, u: float, vs: np.ndarray) -> float:
+    """The share of a find's pixels (rows ``vs``) whose rays meet the usable floor,
+    by 8-row bands at the find's centre column (FrameGeometry caches per 8x8 cell)."""
     band0 = int(vs.min()) // 8
     counts = np.bincount(vs // 8 - band0)
-    total = on = 0.0
+    on = 0.0
     for i in np.flatnonzero(counts).tolist():
-        mpp = geometry.metres_per_px(u, (band0 + i) * 8 + 4.0)
-        if mpp is not None:
-            total += float(counts[i]) * mpp * mpp
+        if geometry.metres_per_px(u, (band0 + i) * 8 + 4.0) is not None:
             on += float(counts[i])
-    return total, on / float(vs.size)
+    return on / float(vs.size)
 
 
 def _floor_key(geometry: FrameGeometry, u: float, v: float) -> tuple[float, float] | None:

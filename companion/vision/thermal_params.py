@@ -63,6 +63,12 @@ class ThermalDetectorParams:
     track_radius_m: float = 0.4
     track_radius_px: float = 8.0
     track_forget_s: float = 5.0
+    # In a stream of frames the ambient level may rise at most this fast (K/s): a
+    # person filling most of the view (closer than about 1 m) lifts the frame's
+    # median to body temperature, the room does not warm that fast. It falls at once.
+    ambient_rise_k_per_s: float = 0.5
+    # The tracked ambient is started afresh after a gap in the frames this long.
+    ambient_reset_s: float = 5.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
