@@ -97,3 +97,18 @@ def test_curve_refuses_nonsense() -> None:
     with pytest.raises(ValueError, match=r"\[0, 1\]"):
         DetectionCurve((1.0, 2.0), (0.5, 1.5))
     assert DetectionCurve((1.0, 2.0, 3.0), (0.5, 0.2, 0.0)).max_range_m == 3.0
+
+
+def test_thermal_frames_add_the_thermal_cameras_footprint() -> None:
+    from companion.coverage import THERMAL
+    from scenarios.camera import default_thermal_camera
+
+    grid = CoverageGrid()
+    mapper = CoverageMapper(grid, GeolocationParams(), default_camera(), default_thermal_camera())
+    assert mapper.add(_pose(), Sensor.THERMAL) > 100
+    # Its own viewpoint record: the colour camera's first frame counts too.
+    assert mapper.add(_pose(), Sensor.COLOUR) > 100
+    ahead = grid.cell_of(np.array([4.5]), np.array([0.0]))
+    # Both looked at a cell 4.4 m ahead: independent chances, thermal's and colour's.
+    want = 1 - (1 - THERMAL.at(np.array([4.41]))[0]) * (1 - COLOUR_LIT.at(np.array([4.41]))[0])
+    assert grid.p_at(ahead)[0] == pytest.approx(want, abs=0.02)
