@@ -18,11 +18,14 @@ grows beyond ``max_side_cells`` cells along either axis (1600 by default: 400 m 
 0.25 m, 10 MB at most): a look's cells outside that window are not recorded, and
 ``cells_refused`` counts them, so the map never claims them.
 
-Every look that changes a cell's quantised probability (``p_q``: 0..255, p = p_q /
-255) stamps the cell with the grid's ``version``; ``delta_since(v)`` gives the cells
-whose stamp is newer than ``v`` with their quantised p (compact: for the radio), and
-``apply_delta`` sets those cells on another grid, which then holds the same quantised
-probabilities. ``snapshot`` / ``restore`` are a JSON-able dict (for SQLite); a
+A look that moves a cell to another *level* (0: never looked at; then one level per
+tenth of probability, so the first look, "glanced at" at 0.3 and "searched well" at
+0.9 always do) stamps the cell with a new ``version``; ``delta_since(v)`` gives the
+cells stamped after ``v`` with their quantised p (``p_q``: 0..255, p = p_q / 255;
+compact, for the radio), and ``apply_delta`` sets those cells on another grid, which
+then holds every cell at the sender's level, never above the sender's p and less
+than a tenth below it. Stamping each change of p_q instead sent three times the
+bytes (bench/coverage.py) for differences no one reads off a map. ``snapshot`` / ``restore`` are a JSON-able dict (for SQLite); a
 snapshot that is not one this module wrote is refused with a ``CoverageError``
 naming what is wrong.
 """
@@ -59,8 +62,18 @@ class CoverageError(FusionError, ValueError):
 
 def quantise(p: NDArray[np.float64]) -> NDArray[np.uint8]:
     """Probabilities as 0..255, rounded down (a quantised grid never claims more),
-    within 1e-4 of a step (float32 cells: a received q / 255 reads back as q)."""
-    return np.floor(np.clip(p, 0.0, 1.0) * _Q_MAX + 1e-4).astype(np.uint8)
+    within 1e-4 of a step (float32 cells: a received q / 255 reads back as q); a cell
+    looked at is at least 1, so it never reads as never looked at."""
+    p = np.clip(np.asarray(p, float), 0.0, 1.0)
+    q = np.floor(p * _Q_MAX + 1e-4)
+    return np.where(p > 0.0, np.maximum(q, 1.0), 0.0).astype(np.uint8)
+
+
+def level(p: NDArray[np.float64]) -> NDArray[np.int64]:
+    """0 for a cell never looked at, else 1 + the tenths of its quantised probability
+    (1..11): the same on a sender and on a receiver of its deltas."""
+    q = quantise(p).astype(np.int64)
+    return np.where(q > 0, 1 + (q * 10) // _Q_MAX, 0)
 
 
 @dataclass(frozen=True)
@@ -142,12 +155,12 @@ class CoverageGrid:
             raise CoverageError(f"max_side_cells = {max_side_cells!r}: must be in [16, 16384]")
         self.cell_m = float(cell_m)
         self.max_side_cells = int(max_side_cells)
-        self.version = 0  # increases with every look that changed a quantised cell
+        self.version = 0  # increases with every look that changed a cell's level
         self.looks = 0
         self.cells_refused = 0  # cells of looks outside the largest window
         self._origin = np.zeros(2, np.int64)  # global index of array cell (0, 0)
         self._miss = np.ones((0, 0), np.float32)  # prod (1 - p) per cell
-        self._stamp = np.zeros((0, 0), np.uint32)  # version of the last quantised change
+        self._stamp = np.zeros((0, 0), np.uint32)  # version of the last change of level
 
     # -- geometry ------------------------------------------------------------------------
 
@@ -246,9 +259,9 @@ class CoverageGrid:
         first[1:] = flat[1:] != flat[:-1]
         flat, p = flat[first], p[first]
         miss = self._miss.reshape(-1)
-        before = quantise(1.0 - miss[flat].astype(float))
+        before = level(1.0 - miss[flat].astype(float))
         miss[flat] = (miss[flat] * (1.0 - p)).astype(np.float32)
-        changed = flat[quantise(1.0 - miss[flat].astype(float)) != before]
+        changed = flat[level(1.0 - miss[flat].astype(float)) != before]
         if len(changed):
             self.version += 1
             self._stamp.reshape(-1)[changed] = self.version
@@ -294,7 +307,7 @@ class CoverageGrid:
     # -- deltas ------------------------------------------------------------------------
 
     def delta_since(self, version: int) -> CoverageDelta:
-        """The cells whose quantised p changed after ``version``, as they are now."""
+        """The cells whose level changed after ``version``, with their p_q now."""
         rows, cols = np.nonzero(self._stamp > version)
         cells = np.column_stack([rows, cols]).astype(np.int64) + self._origin
         p_q = quantise(1.0 - self._miss[rows, cols].astype(float))
@@ -306,7 +319,7 @@ class CoverageGrid:
 
     def apply_delta(self, delta: CoverageDelta) -> None:
         """Set the delta's cells to its quantised probabilities (a receiver's grid: it
-        then holds the sender's quantised values). A cell never falls: a delta that
+        then holds the sender's levels). A cell never falls: a delta that
         arrives late does not undo a newer one."""
         if delta.cell_m != self.cell_m:
             raise CoverageError(f"delta of {delta.cell_m} m cells on a grid of {self.cell_m} m")
