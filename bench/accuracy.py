@@ -305,7 +305,7 @@ def measure_one(scenario: Scenario, work_dir: Path) -> tuple[dict[str, Any], Sco
     )
     recorded = time.perf_counter()
     config = load_config(work_dir / "camera.toml")
-    result = replay(config, work_dir / "mission.tlog", work_dir / "frames")
+    result = replay(config, work_dir / "mission.tlog", work_dir / "frames", work_dir / "thermal")
     replayed = time.perf_counter()
     reported = report_from_dict(result_document(result), work_dir / "replay.json")
     scored = score(load_truth(work_dir / "ground_truth.json"), reported, gate_m=GATE_M)

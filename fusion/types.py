@@ -61,6 +61,15 @@ class Cue(IntFlag):
         """The cues set, as lower-case words ("colour_body", "warm")."""
         return [c.name.lower() for c in Cue if c & self and c.name is not None]
 
+    @property
+    def cameras(self) -> str:
+        """Which camera saw it, in a word: "colour", "thermal", "both" or "" (none)."""
+        colour = bool(self & (Cue.COLOUR_BODY | Cue.COLOUR_PART))
+        warm = bool(self & Cue.WARM)
+        return {(True, True): "both", (True, False): "colour", (False, True): "thermal"}.get(
+            (colour, warm), ""
+        )
+
 
 NO_CUES = Cue(0)  # nothing has seen it yet (a report from before the cues were kept)
 

@@ -280,12 +280,15 @@ def _run_recorded(
     print(
         f"demo: {rec.frames} frames and {rec.thermal_frames} thermal frames of a "
         f"{rec.duration_s:.0f} s mission; the companion's pipeline (the Pi's default "
-        "person detector) processes every colour frame",
+        "person detector and the thermal detector) processes every frame of both cameras",
         flush=True,
     )
     started_s = time.monotonic()
     result = replay(
-        load_config(mission / "camera.toml"), mission / "mission.tlog", mission / "frames"
+        load_config(mission / "camera.toml"),
+        mission / "mission.tlog",
+        mission / "frames",
+        mission / "thermal",
     )
     status = _ReplayStatus(
         uptime_s=rec.duration_s,
@@ -399,7 +402,7 @@ def _summarise(
         route,
         [
             MapVictim(
-                f"V{v.hq_id}",
+                f"V{v.hq_id} {v.cues.cameras}".rstrip(),
                 v.urgency,
                 v.north_m,
                 v.east_m,
@@ -421,7 +424,8 @@ def _summarise(
         [d.polygon for d in world.debris],
         (0.0, world.size_m[0], 0.0, world.size_m[1]),
     )
-    table = _victim_table(world, result, reported, first_in_view)
+    cameras = {v.hq_id: v.cues.cameras or "?" for v in victims}
+    table = _victim_table(world, result, reported, first_in_view, cameras)
     return DemoResult(
         out_dir,
         len(victims),
@@ -437,11 +441,13 @@ def _victim_table(
     result: ScoreResult,
     reported: list[ReportedVictim],
     first_in_view: dict[int, float],
+    cameras: dict[int, str],
 ) -> str:
-    """One line per true victim: what the HQ got for it."""
+    """One line per true victim: what the HQ got for it, and which camera found it
+    (colour, thermal or both; "?" from a robot that does not say)."""
     by_true = {m.true_id: m for m in result.matches}
     by_id = {r.victim_id: r for r in reported}
-    lines = ["true victim   urgency    reported as          error   first report"]
+    lines = ["true victim   urgency    reported as          camera   error   first report"]
     for v in world.victims:
         m = by_true.get(v.victim_id)
         if m is None:
@@ -457,12 +463,13 @@ def _victim_table(
         )
         lines.append(
             f"T{v.victim_id:<11d} {v.urgency.name:<10s} V{r.victim_id:<3d} "
-            f"{r.urgency.name:<16s} {m.error_m:4.2f} m  {delay}"
+            f"{r.urgency.name:<16s} {cameras.get(r.victim_id, '?'):<8s} {m.error_m:4.2f} m  {delay}"
         )
     false = [r for r in reported if r.victim_id not in {m.reported_id for m in result.matches}]
     for r in false:
         lines.append(
-            f"{'(none)':<12s} {'':<10s} V{r.victim_id:<3d} {r.urgency.name:<16s} false victim"
+            f"{'(none)':<12s} {'':<10s} V{r.victim_id:<3d} {r.urgency.name:<16s} "
+            f"{cameras.get(r.victim_id, '?'):<8s} false victim"
         )
     return "\n".join(lines)
 
