@@ -5,13 +5,17 @@ the vehicle is absent hardware (an object with no EKF origin)."""
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import sqlite3
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import test_companion_service as service
 
 from companion.announcements import Announcer
 from companion.config import PicturesConfig
@@ -25,6 +29,8 @@ from fusion.types import PoseSample, Sensor
 from mavlink_io import dialect
 from mavlink_io.reliable import Outbox
 from scenarios.camera import default_camera
+from scenarios.live import LiveSim
+from scenarios.world import preset
 
 M = dialect.load()
 
@@ -102,3 +108,44 @@ def test_unusable_saved_grid_is_said_and_the_victims_kept(
     assert again.coverage.looks == 0
     assert again.report_seq == 41
     again._store.close()
+
+
+@pytest.mark.slow
+def test_service_saves_the_grid_and_restores_it_after_a_restart(tmp_path: Path) -> None:
+    """The real ``rescue-companion run`` against the simulated rover: its processing
+    thread adds every frame's footprint; the grid is in the state file after a stop
+    and the next run starts from it."""
+
+    def saved_looks() -> int:
+        path = tmp_path / "state" / "companion.sqlite"
+        if not path.exists():  # not yet created by the starting service
+            return 0
+        db = sqlite3.connect(str(path))
+        try:
+            row = db.execute("SELECT value FROM kv WHERE key = ?", (COVERAGE_KEY,)).fetchone()
+        finally:
+            db.close()
+        return 0 if row is None else int(json.loads(row[0])["looks"])
+
+    log = tmp_path / "companion.log"
+    with LiveSim(preset("light"), patrol_first_victim=True, speed_m_s=0.4) as sim:
+        cfg = service._config(tmp_path, sim)
+        proc = service._start(cfg, log)
+        try:
+            deadline = time.monotonic() + 60.0
+            while time.monotonic() < deadline and saved_looks() < 5:  # the periodic save
+                time.sleep(1.0)
+        finally:
+            assert service._stop(proc) == 0, log.read_text()[-3000:]
+        first = saved_looks()
+        assert first >= 5, log.read_text()[-3000:]
+        proc = service._start(cfg, log)
+        try:
+            deadline = time.monotonic() + 60.0
+            while time.monotonic() < deadline and "coverage restored" not in log.read_text():
+                time.sleep(0.5)
+            time.sleep(8.0)
+        finally:
+            assert service._stop(proc) == 0, log.read_text()[-3000:]
+    assert f"coverage restored: {first} looks" in log.read_text()
+    assert saved_looks() > first
