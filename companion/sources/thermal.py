@@ -12,12 +12,13 @@ value finite, with its capture time on both clocks (as a colour ``Frame``).
 ``infiray:/dev/videoN``    an InfiRay P2 Pro / Topdon TC001 (YUYV, picture above,
                            kelvin x 64 below)
 ``frames:DIR``             recorded ``<unix_time_us>.png`` (16-bit centi-kelvin)
+``sim:HOST:PORT``          the simulator's thermal camera (TCP, see ``thermal_sim``)
 =========================  ==========================================================
 
 The modules beside this one: ``thermal_raw`` (device values to temperatures, the
 emissivity correction, and the checks every frame passes), ``thermal_live`` (the two
-USB cameras), ``thermal_folder`` (the recorded folder and its writer) and
-``thermal_open`` (``open_thermal``: the configured camera, reopened with backoff).
+USB cameras), ``thermal_folder`` (the recorded folder and its writer),
+``thermal_sim`` (the simulator's camera server) and ``thermal_open`` (``open_thermal``: the configured camera, reopened with backoff).
 """
 
 from __future__ import annotations
@@ -57,13 +58,14 @@ class ThermalSource(Protocol):
     def close(self) -> None: ...
 
 
-ThermalKind = Literal["lepton", "infiray", "frames"]
+ThermalKind = Literal["lepton", "infiray", "frames", "sim"]
 
 
 @dataclass(frozen=True)
 class ThermalSpec:
     kind: ThermalKind
-    target: str  # "/dev/videoN", a folder, or "" for the first PureThermal found
+    target: str  # "/dev/videoN", a folder, a host, or "" for the first PureThermal found
+    port: int = 0  # sim only
 
 
 def parse_thermal_source(source: str) -> ThermalSpec:
@@ -80,7 +82,12 @@ def parse_thermal_source(source: str) -> ThermalSpec:
             return ThermalSpec("lepton" if kind == "lepton" else "infiray", device)
     if text.startswith("frames:") and text[7:]:
         return ThermalSpec("frames", text[7:])
+    if text.startswith("sim:"):
+        host, sep, port = text[4:].rpartition(":")
+        if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise CameraError(f"source {source!r}: expected sim:HOST:PORT (port 1..65535)")
+        return ThermalSpec("sim", host, int(port))
     raise CameraError(
         f"source {source!r}: not understood; use lepton, lepton:/dev/videoN, "
-        "infiray:/dev/videoN or frames:DIR"
+        "infiray:/dev/videoN, frames:DIR or sim:HOST:PORT"
     )

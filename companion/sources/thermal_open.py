@@ -27,17 +27,24 @@ from companion.sources.thermal_live import (
     VideoCaptureLike,
     find_purethermal,
 )
+from companion.sources.thermal_sim import ThermalSimSource
+
+AnyThermal = ThermalCaptureSource | ThermalFramesDir | ThermalSimSource
 
 
 def open_thermal_source(
     thermal: ThermalConfig,
     capture: Callable[[], VideoCaptureLike] = cv2.VideoCapture,
     video4linux: Path = VIDEO4LINUX,
-) -> ThermalCaptureSource | ThermalFramesDir:
+) -> AnyThermal:
     """Open the configured thermal camera once; CameraError when it cannot be opened."""
     spec = parse_thermal_source(thermal.source)
     if spec.kind == "frames":
         return ThermalFramesDir(Path(spec.target), thermal.width_px, thermal.height_px)
+    if spec.kind == "sim":
+        return ThermalSimSource(
+            spec.target, spec.port, thermal.width_px, thermal.height_px, thermal.emissivity
+        )
     device = spec.target or find_purethermal(video4linux)
     return ThermalCaptureSource(
         device,
@@ -62,7 +69,7 @@ class ReopeningThermalSource:
         spec = parse_thermal_source(thermal.source)  # a malformed string is a config error
         live = spec.kind != "frames"
         self.name = thermal.source
-        self._current: ThermalCaptureSource | ThermalFramesDir | None = None
+        self._current: AnyThermal | None = None
 
         def factory() -> FrameSource:
             self._current = open_thermal_source(thermal, capture, video4linux)
