@@ -1,13 +1,16 @@
 """Thermal camera sources: the Lepton on a PureThermal board and the InfiRay P2 Pro /
 TC001 against a pseudo-device behind cv2.VideoCapture's interface (no camera is
-plugged in here), the recorded frames folder with real PNG files, and every input that
-is not temperatures giving one line (CameraError, or a frame skipped and said) and
-never a traceback."""
+plugged in here), the recorded frames folder with real PNG files, the simulator's
+thermal camera over real sockets, and every input that is not temperatures giving one
+line (CameraError, or a frame skipped and said) and never a traceback."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import logging
 import queue
+import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,11 +24,13 @@ from hypothesis import strategies as st
 
 from companion.config import ThermalConfig
 from companion.sources.base import CameraError, CameraTimeout, EndOfStream
-from companion.sources.thermal import ThermalFrame
+from companion.sources.sim import encode_sim_frame
+from companion.sources.thermal import ThermalFrame, ThermalSpec, parse_thermal_source
 from companion.sources.thermal_folder import ThermalFramesDir, write_thermal_frame
 from companion.sources.thermal_live import ThermalCaptureSource, find_purethermal
-from companion.sources.thermal_open import open_thermal
+from companion.sources.thermal_open import ReopeningThermalSource, open_thermal
 from companion.sources.thermal_raw import ThermalJudge, object_temps_c
+from companion.sources.thermal_sim import ThermalSimSource
 from tests.jsonfuzz import fuzz_settings
 
 FOURCC_Y16 = float(cv2.VideoWriter.fourcc(*"Y16 "))
@@ -642,3 +647,200 @@ def test_a_real_lepton_sized_scene_through_the_camera_and_the_folder(
     replayed = ThermalFramesDir(tmp_path, 160, 120).read(1.0)
     assert np.abs(replayed.temps_c - scene).max() < 0.011
     assert replayed.t_unix_s == pytest.approx(live.t_unix_s, abs=1e-6)
+
+
+# -- the simulator's thermal camera: sim:HOST:PORT -----------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("sim:127.0.0.1:5601", ThermalSpec("sim", "127.0.0.1", 5601)),
+        (" sim:rover.local:7000 ", ThermalSpec("sim", "rover.local", 7000)),
+        ("sim:127.0.0.1", "source 'sim:127.0.0.1': expected sim:HOST:PORT (port 1..65535)"),
+        ("sim::5601", "source 'sim::5601': expected sim:HOST:PORT (port 1..65535)"),
+        ("sim:h:70000", "source 'sim:h:70000': expected sim:HOST:PORT (port 1..65535)"),
+    ],
+)
+def test_the_sim_source_string(text: str, expected: ThermalSpec | str) -> None:
+    if isinstance(expected, ThermalSpec):
+        assert parse_thermal_source(text) == expected
+        return
+    with pytest.raises(CameraError) as info:
+        parse_thermal_source(text)
+    assert str(info.value) == expected
+
+
+class FrameFeed:
+    """A TCP server on 127.0.0.1 that sends what a test gives it, framed as the
+    simulator's camera servers frame their pictures (``encode_sim_frame``)."""
+
+    def __init__(self) -> None:
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.listener.settimeout(5.0)
+        self.port = self.listener.getsockname()[1]
+        self.source = f"sim:127.0.0.1:{self.port}"
+        self.clients: list[socket.socket] = []
+
+    def accept(self) -> socket.socket:
+        conn, _ = self.listener.accept()
+        self.clients.append(conn)
+        return conn
+
+    def close(self) -> None:
+        for conn in self.clients:
+            conn.close()
+        self.listener.close()
+
+
+@pytest.fixture
+def feed() -> Iterator[FrameFeed]:
+    server = FrameFeed()
+    yield server
+    server.close()
+
+
+def _packet(words: np.ndarray, t_unix_s: float | None = None) -> bytes:
+    ok, png = cv2.imencode(".png", words)
+    assert ok
+    return encode_sim_frame(png.tobytes(), time.time() if t_unix_s is None else t_unix_s)
+
+
+def _down(camera: ReopeningThermalSource, within_s: float) -> str:
+    """What the camera says when it goes down (read in short steps: a longer read would
+    already be waiting on the reopened one)."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        try:
+            camera.read(0.05)
+        except CameraTimeout:
+            continue
+        except CameraError as exc:
+            return str(exc)
+    raise AssertionError(f"still up after {within_s} s: {camera.status}")
+
+
+def test_sim_frames_are_temperatures_on_both_clocks(feed: FrameFeed) -> None:
+    source = ThermalSimSource("127.0.0.1", feed.port, 160, 120, 1.0)
+    try:
+        conn = feed.accept()
+        scene = _scene_c()
+        stamp = time.time() - 0.25
+        conn.sendall(_packet(_centi_k(scene), stamp))
+        frame = source.read(2.0)
+        assert np.abs(frame.temps_c - scene).max() < 0.006
+        assert frame.t_unix_s == pytest.approx(stamp, abs=1e-6)
+        assert frame.t_mono_s == pytest.approx(time.monotonic() - 0.25, abs=0.1)
+        # Bytes that are no PNG are skipped and counted; the stream stays in step.
+        conn.sendall(encode_sim_frame(b"\x89PNG\r\n\x1a\n" + b"\x00" * 40, time.time()))
+        with pytest.raises(CameraTimeout):
+            source.read(0.5)
+        assert source.frames_corrupt == 1
+        conn.sendall(_packet(_centi_k(_scene_c())))
+        assert source.read(2.0).temps_c.shape == (120, 160)
+        assert source.status == "ok"
+        # Raw counts (radiometry off) are absurd temperatures: skipped and said.
+        conn.sendall(_packet(np.full((120, 160), 8000, np.uint16)))
+        with pytest.raises(CameraTimeout):
+            source.read(0.5)
+        assert source.status.startswith("absurd temperatures (-193.1 to -193.1 °C")
+        assert source.frames_skipped == 1
+    finally:
+        source.close()
+
+
+@pytest.mark.parametrize(
+    ("words", "why"),
+    [
+        (np.full((120, 160), 200, np.uint8), "an 8-bit picture where 16-bit temperatures"),
+        (np.zeros((120, 160, 3), np.uint8), "a false-colour (3-channel 8-bit) picture where"),
+        (np.full((240, 320), 29315, np.uint16), "frames are 320x240, [thermal] is configured"),
+    ],
+)
+def test_sim_frames_that_are_not_temperatures_fail_the_camera_until_they_are(
+    feed: FrameFeed, words: np.ndarray, why: str
+) -> None:
+    camera = open_thermal(ThermalConfig(source=feed.source, reopen_max_backoff_s=0.5))
+    try:
+        with pytest.raises(CameraTimeout):  # the first read connects
+            camera.read(0.2)
+        conn = feed.accept()
+        conn.sendall(_packet(words))
+        assert _down(camera, 2.0).startswith(f"camera down: {feed.source}: {why}")
+        assert camera.status.startswith(f"down: {feed.source}: {why}") and not camera.healthy
+        with pytest.raises(CameraTimeout):  # reconnects with backoff
+            camera.read(1.0)
+        again = feed.accept()  # temperatures again
+        again.sendall(_packet(_centi_k(_scene_c())))
+        assert camera.read(3.0).temps_c.shape == (120, 160)
+        assert camera.status == "ok" and camera.healthy
+    finally:
+        camera.close()
+
+
+def test_a_sim_camera_that_is_not_there_is_said_and_tried_again() -> None:
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        port = s.getsockname()[1]  # closed again: nothing listens there
+    camera = open_thermal(ThermalConfig(source=f"sim:127.0.0.1:{port}", reopen_max_backoff_s=0.5))
+    try:
+        with pytest.raises(CameraError) as info:
+            camera.read(0.1)
+        assert str(info.value).startswith(
+            f"camera down: sim:127.0.0.1:{port}: cannot connect: Connection refused"
+        )
+        with socket.create_server(("127.0.0.1", port)) as late:  # the simulator starts
+            late.settimeout(5.0)
+            with pytest.raises(CameraTimeout):
+                camera.read(1.0)
+            conn, _ = late.accept()
+            with conn:
+                conn.sendall(_packet(_centi_k(_scene_c())))
+                assert camera.read(2.0).temps_c.shape == (120, 160)
+    finally:
+        camera.close()
+
+
+def test_the_simulators_thermal_camera_end_to_end() -> None:
+    """The simulator's thermal camera server renders from the rover's true pose at each
+    frame's capture time; the companion's sim source reads back exactly the renderer's
+    temperatures; flat-field frames (the last one again) are skipped as a Lepton's."""
+    from scenarios.camserver import ThermalCameraServer
+    from scenarios.motion import Trajectory
+    from scenarios.thermal import ThermalOptions, ThermalRenderer
+    from scenarios.world import preset
+
+    world = preset("thermal_covered")
+    victim = world.victims[0]
+    trajectory = Trajectory((victim.north_m - 2.5, victim.east_m), 0.0, ((9.0, victim.east_m),))
+    options = ThermalOptions(noise_k=0.0, ffc_period_s=1.0, ffc_duration_s=0.4)
+    t0_unix_s = float(int(time.time()))
+    t0_mono_s = time.monotonic()
+
+    def pose_now() -> tuple[Any, float]:
+        # Whole milliseconds: the frame's capture time (whole µs) gives back this t_s.
+        t_s = round(time.monotonic() - t0_mono_s, 3)
+        return trajectory.pose_at(t_s), t0_unix_s + t_s
+
+    server = ThermalCameraServer(ThermalRenderer(world, options=options), pose_now).start()
+    camera = open_thermal(
+        ThermalConfig(source=f"sim:127.0.0.1:{server.address[1]}", emissivity=1.0)
+    )
+    reference = ThermalRenderer(world, options=dataclasses.replace(options, ffc=False))
+    try:
+        frames = []
+        deadline = time.monotonic() + 20.0
+        while len(frames) < 8 and time.monotonic() < deadline:
+            with contextlib.suppress(CameraTimeout):
+                frames.append(camera.read(1.0))
+        assert len(frames) == 8, camera.status
+        for frame in frames:
+            t_s = round(frame.t_unix_s - t0_unix_s, 3)
+            expected = reference.render(trajectory.pose_at(t_s), t_s).temps_c
+            assert np.abs(frame.temps_c - expected).max() < 0.006
+        assert frames[-1].temps_c.max() > world.floor.temperature_c + 5.0  # the warm blanket
+        assert server.frames_frozen > 0  # the shutter closed: those frames were not read
+        assert len({f.index for f in frames}) == 8 and camera.healthy
+        assert camera.read(3.0).temps_c.shape == (120, 160)
+    finally:
+        camera.close()
+        server.close()
