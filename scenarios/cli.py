@@ -6,7 +6,7 @@
     rescue-sim score  --truth DIR/ground_truth.json --victims REPORT.json [--json]
     rescue-sim sheet  (--preset P | --seed S | --world W) --out sheet.png
     rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
-                      [--camera-port PORT] [--time-scale X]
+                      [--camera-port PORT] [--thermal-port PORT] [--time-scale X]
     rescue-sim demo   [--preset P | --seed S | --world W] [--out DIR] [--duration-s T]
                       [--resume] [--live]
 
@@ -126,13 +126,19 @@ def _parser() -> argparse.ArgumentParser:
     _world_args(c)
     c.add_argument("--out", type=Path, required=True)
 
-    v = sub.add_parser("rover", help="run the simulated rover (and camera) live")
+    v = sub.add_parser("rover", help="run the simulated rover (and its cameras) live")
     _world_args(v)
     v.add_argument("--link", action="append", required=True, help="udpin:H:P, tcpin:H:P, ..., pty")
     v.add_argument(
         "--camera-port", type=_PORT, help="serve camera frames on this TCP port (0: any free one)"
     )
-    v.add_argument("--camera-host", default="127.0.0.1")
+    v.add_argument(
+        "--thermal-port",
+        type=_PORT,
+        help="serve the thermal camera's frames (centi-kelvin PNG, 8.7/s) on this TCP port "
+        "(0: any free one)",
+    )
+    v.add_argument("--camera-host", default="127.0.0.1", help="where both cameras listen")
     v.add_argument("--time-scale", type=_number(0.0, 100.0), default=1.0)
     v.add_argument("--speed-m-s", type=_SPEED_M_S, default=0.4)
     d = sub.add_parser(
@@ -213,14 +219,15 @@ def _cmd_sheet(args: argparse.Namespace, world: World) -> int:
 
 def _cmd_rover(args: argparse.Namespace, world: World) -> int:
     from companion.stopsignals import StopSignals
-    from scenarios.camserver import CameraServer
+    from scenarios.camserver import CameraServer, FrameServer, ThermalCameraServer
     from scenarios.render import Renderer
     from scenarios.rover import SimRover
+    from scenarios.thermal import ThermalRenderer
 
     signals = StopSignals()  # not Event.set in a handler: see companion/stopsignals.py
     signals.install()
     rover = SimRover(world, args.link, time_scale=args.time_scale, speed_m_s=args.speed_m_s)
-    cam = None
+    servers: list[FrameServer] = []
     try:
         rover.start()
         for i, spec in enumerate(args.link):
@@ -233,13 +240,24 @@ def _cmd_rover(args: argparse.Namespace, world: World) -> int:
                 host=args.camera_host,
                 port=args.camera_port,
                 time_scale=args.time_scale,
-            ).start()
+            )
+            servers.append(cam.start())
             print(f"camera: tcp {cam.address[0]}:{cam.address[1]}", flush=True)
+        if args.thermal_port is not None:
+            warm = ThermalCameraServer(
+                ThermalRenderer(world),
+                rover.camera_pose,
+                host=args.camera_host,
+                port=args.thermal_port,
+                time_scale=args.time_scale,
+            )
+            servers.append(warm.start())
+            print(f"thermal camera: tcp {warm.address[0]}:{warm.address[1]}", flush=True)
         while signals.reason() is None:
             time.sleep(0.1)
     finally:
-        if cam is not None:
-            cam.close()
+        for server in servers:
+            server.close()
         rover.close()
     return EXIT_OK
 

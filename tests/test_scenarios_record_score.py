@@ -448,6 +448,52 @@ def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
                 proc.wait()
 
 
+def test_rover_serves_both_cameras_live() -> None:
+    """``rescue-sim rover --camera-port 0 --thermal-port 0``: the colour camera's JPEGs
+    and the thermal camera's 16-bit centi-kelvin PNGs, each on its own port with the
+    same framing, stamped with the wall clock of the rover's true pose."""
+    with subprocess.Popen(
+        [
+            *(sys.executable, "-m", "scenarios.cli", "rover", "--preset", "thermal_covered"),
+            *("--link", "udpin:127.0.0.1:0", "--camera-port", "0", "--thermal-port", "0"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as proc:
+        try:
+            assert proc.stdout is not None and proc.stderr is not None
+            lines = [proc.stdout.readline() for _ in range(3)]
+            assert lines[0].startswith("rover link 0: udpin:127.0.0.1:"), lines
+            assert lines[1].startswith("camera: tcp 127.0.0.1:"), lines
+            assert lines[2].startswith("thermal camera: tcp 127.0.0.1:"), lines
+            colour_port, thermal_port = (int(line.rsplit(":", 1)[1]) for line in lines[1:])
+            with socket.create_connection(("127.0.0.1", thermal_port), timeout=10.0) as sock:
+                stamps = []
+                for _ in range(3):
+                    length, t_us = HEADER.unpack(_read_exact(sock, HEADER.size))
+                    png = np.frombuffer(_read_exact(sock, length - 8), np.uint8)
+                    words = cv2.imdecode(png, cv2.IMREAD_UNCHANGED)
+                    assert words.dtype == np.uint16 and words.shape == (120, 160)
+                    temps_c = words / 100.0 - 273.15
+                    assert 10.0 < float(np.median(temps_c)) < 25.0  # the world's 18 °C room
+                    stamps.append(t_us / 1e6)
+                assert stamps == sorted(stamps) and len(set(stamps)) == 3
+                assert abs(stamps[-1] - time.time()) < 5.0
+            with socket.create_connection(("127.0.0.1", colour_port), timeout=10.0) as sock:
+                length, _t_us = HEADER.unpack(_read_exact(sock, HEADER.size))
+                jpeg = np.frombuffer(_read_exact(sock, length - 8), np.uint8)
+                image = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)
+                assert image is not None and image.shape == (480, 640, 3)
+            proc.send_signal(signal.SIGTERM)
+            code = proc.wait(timeout=10)
+            assert code == 0, proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
@@ -462,6 +508,10 @@ def test_rover_stops_cleanly_on_sigterm_right_after_start() -> None:
         (
             ["rover", "--preset", "light", "--link", "pty", "--camera-port", "70000"],
             "--camera-port",
+        ),
+        (
+            ["rover", "--preset", "light", "--link", "pty", "--thermal-port", "-1"],
+            "--thermal-port",
         ),
         (["demo", "--speed-m-s", "0"], "--speed-m-s: '0' is outside (0, 5]"),
         (["demo", "--duration-s", "inf"], "--duration-s: 'inf'"),
