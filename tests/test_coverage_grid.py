@@ -95,7 +95,9 @@ def test_snapshot_round_trip(looks: list[list[tuple[int, int, float]]]) -> None:
     snap = json.loads(json.dumps(grid.snapshot()))  # as SQLite keeps it
     back = CoverageGrid.restore(snap)
     assert back.snapshot() == grid.snapshot()
-    assert np.array_equal(back.probabilities(), grid.probabilities())
+    # Kept to 1/65535, rounded towards claiming more (within float32: 2e-7).
+    assert np.all(back.probabilities() >= grid.probabilities() - 2e-7)
+    assert np.all(back.probabilities() - grid.probabilities() < 2e-5)
     assert back.delta_since(0).cells.tolist() == grid.delta_since(0).cells.tolist()
 
 
@@ -128,17 +130,7 @@ def test_bad_snapshot_refused_naming_what(change: dict[str, object], named: str)
     assert "\n" not in str(info.value)
 
 
-def test_snapshot_with_probability_out_of_range_refused() -> None:
-    import base64
-    import zlib
-
-    snap = _snap()
-    shape = snap["shape"]
-    assert isinstance(shape, list)
-    bad = np.full(shape, 1.5, "<f4")
-    snap["miss"] = base64.b64encode(zlib.compress(bad.tobytes())).decode()
-    with pytest.raises(CoverageError, match=r"miss holds a value outside \[0, 1\]"):
-        CoverageGrid.restore(snap)
+def test_snapshot_that_is_not_a_table_refused() -> None:
     with pytest.raises(CoverageError, match="not a table"):
         CoverageGrid.restore([1, 2])
 

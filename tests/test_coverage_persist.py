@@ -80,7 +80,7 @@ def test_grid_survives_a_restart(tmp_path: Path) -> None:
 
     again = _start(tmp_path)
     assert again.coverage.snapshot() == saved
-    assert np.array_equal(again.coverage.probabilities(), p)
+    assert np.allclose(again.coverage.probabilities(), p, atol=2e-5)  # kept to 1/65535
     # Looks after the restart add to what was there.
     before = again.coverage.summary().looked_at_m2
     _drive(again, 40)
