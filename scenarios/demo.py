@@ -10,7 +10,8 @@ which stores, merges and acknowledges it (resent until acknowledged). A fixed se
 gives the same victims, IDs and figures whatever the machine's speed.
 
 ``--live`` runs the whole product in real time instead: the simulated rover and its
-camera in this process (scenarios.live), the real ``rescue-companion run`` and
+two cameras in this process (scenarios.live), the real ``rescue-companion run`` (its
+config with the ``[thermal]`` section of the simulator's Lepton) and
 ``rescue-hq`` as child processes wired as on a robot (our reports reach the HQ only
 inside TUNNEL, routed by the rover as ArduPilot would). The companion then
 processes what frames its CPU allows, so two runs on a loaded machine can differ.
@@ -92,6 +93,7 @@ def _companion_config(sim: LiveSim, out_dir: Path) -> Path:
         "tunnel = true\n\n"
         f'[camera]\nsource = "{sim.camera_source}"\n\n'
         f'[paths]\nstate_dir = "{out_dir / "companion-state"}"\n\n'
+        + sim.thermal_toml  # the Lepton beside the colour camera, served by the simulator
     )
     return path
 
@@ -361,7 +363,7 @@ def _run_live(
         finally:
             companion_exit = _stop(companion, "rescue-companion")
             hq_exit = _stop(hq, "rescue-hq")
-        first_in_view = dict(sim.camera.first_in_view_unix_s)
+        first_in_view = sim.first_in_view_unix_s  # by either camera: the earlier
     return _summarise(world, out_dir, route, first_in_view, companion_exit, hq_exit)
 
 

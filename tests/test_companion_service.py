@@ -7,14 +7,17 @@ camera server and state directory.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import NotifySocket
@@ -398,3 +401,83 @@ def test_a_camera_of_another_aspect_is_named_and_not_used(
     log = (tmp_path / "companion.log").read_text()
     assert "frames are 640x480, the camera is configured for 640x360" in log
     assert "Traceback" not in log
+
+
+def test_a_victim_only_the_thermal_camera_sees_is_reported_warm_with_its_thermal_view(
+    tmp_path: Path,
+) -> None:
+    """The simulator's thermal camera, live: a person wholly under a blanket (the
+    colour camera sees none of them) is found by its warmth through the cloth. The
+    ground gets the report with the WARM cue and no colour one, at the person's place,
+    and the thermal evidence picture's chunks (the THERMAL flag), a whole JPEG."""
+    from fusion.geodesy import geodetic_to_ned
+    from fusion.types import Cue
+    from mavlink_io.picture import FLAG_THERMAL, Chunk, Reassembly
+
+    world = preset("thermal_covered")  # T1: under a blanket, 0 % visible, warm through it
+    hidden = world.victims[0]
+    assert hidden.visibility_pct == 0.0
+    with LiveSim(world, patrol_first_victim=True, speed_m_s=0.25) as sim:
+        ground = GroundPeer(sim.ground_url)
+        try:
+            ground.acking.set()
+            cfg = _config(
+                tmp_path, sim, extra=sim.thermal_toml + "\n[pictures]\nrate_bytes_s = 20000.0\n"
+            )
+            proc = _start(cfg, tmp_path / "companion.log")
+            try:
+                report = ground.wait_for(lambda m: m.get_type() == "RESCUE_VICTIM_REPORT", 50.0)
+                victim = report.victim_id
+                chunks = ground.wait_for(
+                    lambda m: (
+                        m.get_type() == "RESCUE_PICTURE_CHUNK"
+                        and m.victim_id == victim
+                        and m.flags & FLAG_THERMAL
+                    ),
+                    20.0,
+                )
+                picture = Reassembly.starting(Chunk.from_msg(chunks))
+                assert ground.wait_until(
+                    lambda: _chunks_of(ground, picture.picture_id) >= picture.count, 10.0
+                ), f"{_chunks_of(ground, picture.picture_id)} of {picture.count} chunks"
+            finally:
+                code = _stop(proc)
+        finally:
+            ground.close()
+    log = (tmp_path / "companion.log").read_text()
+    assert code == 0, log[-3000:]
+    assert "Traceback" not in log and "colour camera only" not in log
+    reports = [m for m in ground.of_type("RESCUE_VICTIM_REPORT") if m.victim_id == victim]
+    assert all(Cue(m.cues) & Cue.WARM for m in reports), [m.cues for m in reports]
+    assert not any(Cue(m.cues) & (Cue.COLOUR_BODY | Cue.COLOUR_PART) for m in reports)
+    north_m, east_m, _ = geodetic_to_ned(
+        world.origin, reports[-1].lat / 1e7, reports[-1].lon / 1e7, world.origin.alt_m
+    )
+    assert math.hypot(north_m - hidden.north_m, east_m - hidden.east_m) < 1.0
+    for _, m in ground.received():
+        if m.get_type() == "RESCUE_PICTURE_CHUNK" and m.picture_id == picture.picture_id:
+            picture.add(Chunk.from_msg(m))
+    image = cv2.imdecode(np.frombuffer(picture.jpeg(), np.uint8), cv2.IMREAD_COLOR)
+    assert image is not None and image.size > 0
+    # The processing thread committed it: the thermal view is kept (or a better one
+    # chosen since), and there is no colour view of a person the colour camera never saw.
+    db = sqlite3.connect(tmp_path / "state" / "companion.sqlite")
+    try:
+        (kept,) = db.execute(
+            "SELECT picture_id FROM thermal_pictures WHERE victim_id=?", (victim,)
+        ).fetchone()
+        colour = db.execute("SELECT 1 FROM pictures WHERE victim_id=?", (victim,)).fetchall()
+    finally:
+        db.close()
+    assert kept >= picture.picture_id and not colour
+
+
+def _chunks_of(ground: GroundPeer, picture_id: int) -> int:
+    """How many different chunks of this picture the ground has."""
+    return len(
+        {
+            m.chunk_index
+            for _, m in ground.received()
+            if m.get_type() == "RESCUE_PICTURE_CHUNK" and m.picture_id == picture_id
+        }
+    )
