@@ -343,3 +343,58 @@ def test_a_person_filling_most_of_the_view_is_still_found_in_a_stream() -> None:
     assert len(result.finds) == 1
     # A photo (no stream) has only its own median: the same picture alone shows none.
     assert ThermalDetector().analyse(close, None, 0.0).finds == []
+
+
+def _warm_patch_at(
+    t: np.ndarray,
+    north_m: float,
+    east_m: float,
+    up_m: float,
+    size_m: float,
+    c: float,
+    width_m: float | None = None,
+) -> None:
+    """A warm rectangle facing the rover, ``width_m`` (default ``size_m``) across and
+    ``size_m`` high, its bottom ``up_m`` above the floor."""
+    width_m = size_m if width_m is None else width_m
+    from companion.calibration import camera_model
+    from companion.config import Config, ThermalConfig
+    from fusion.camera import rotation_zyx
+
+    camera = camera_model(ThermalConfig())
+    floor_down = Config().geolocation.floor_down_m
+    pts = np.array(
+        [
+            [north_m, east_m + a, floor_down - up_m - b]
+            for a in (-width_m / 2, width_m / 2)
+            for b in (0.0, size_m)
+        ]
+    )
+    px, _ = camera.project_ned(pts, np.zeros(3), rotation_zyx(0.0, 0.0, 0.0))
+    (u0, v0), (u1, v1) = np.floor(px.min(axis=0)).astype(int), np.ceil(px.max(axis=0)).astype(int)
+    t[max(v0, 0) : v1, max(u0, 0) : u1] = c
+
+
+def test_a_face_over_the_edge_of_a_slab_is_placed_by_its_size_and_is_critical() -> None:
+    # A face 0.35 m up (over a slab's edge) 1.5 m ahead: placed on the floor behind it
+    # it would read 1.5 m too far and as metres of warmth; by a face's size it lies
+    # where it is, and a face alone is a small part: CRITICAL.
+    geometry = _lepton_on_a_rover()
+    t = _scene()
+    _warm_patch_at(t, 1.5, 0.0, 0.35, 0.16, 34.0)
+    (find,) = ThermalDetector().analyse(t, geometry, 0.0).finds
+    d = find.detection
+    north, east = geometry.floor_ne_m(np.array([[d.u_px, d.v_px]]))[0]
+    assert abs(north - 1.5) < 0.35 and abs(east) < 0.15
+    assert "warm_part" in d.cues
+    assessment = assess(d, geometry)
+    assert assessment is not None and assessment.urgency == Urgency.CRITICAL
+
+
+def test_a_warm_pipe_high_on_a_wall_is_no_one_lying() -> None:
+    geometry = _lepton_on_a_rover()
+    t = _scene()
+    _warm_patch_at(t, 10.0, 0.0, 1.0, 0.1, 38.0, width_m=3.0)  # a hot water pipe, 1 m up
+    result = ThermalDetector().analyse(t, geometry, 0.0)
+    assert result.finds == []
+    assert any("above the floor" in r.reason for r in result.rejected)

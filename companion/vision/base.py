@@ -44,6 +44,9 @@ _CACHE_CELL_PX = 8  # FrameGeometry answers are cached per 8x8-pixel cell
 FloorMap = Callable[[np.ndarray], np.ndarray]  # pixels (N, 2) -> floor (N, 2), NaN off it
 PlaneMap = Callable[[np.ndarray, float], np.ndarray]  # (pixels, height_m) -> (N, 2) on that plane
 PixelMap = Callable[[np.ndarray], np.ndarray]  # floor (N, 2) -> pixels (N, 2), NaN if not in front
+# (pixels (N, 2), range_m) -> (N, 3): north, east and height above the floor of the
+# point at that distance along each pixel's ray
+RayMap = Callable[[np.ndarray, float], np.ndarray]
 
 
 class VisionError(CompanionError):
@@ -74,6 +77,7 @@ class FrameGeometry:
         plane_ne_m: PlaneMap | None = None,
         pixels_of_floor: PixelMap | None = None,
         area_along: Callable[[float, float, float], float | None] | None = None,
+        along_ray: RayMap | None = None,
     ) -> None:
         self._mpp = metres_per_px
         self._area = expected_body_area_px
@@ -81,6 +85,7 @@ class FrameGeometry:
         self._plane = plane_ne_m
         self._pixels_of = pixels_of_floor
         self._area_along = area_along
+        self._along_ray = along_ray
         self._cache: dict[tuple[str, int, int], float | None] = {}
 
     def _cached(
@@ -109,6 +114,14 @@ class FrameGeometry:
                 return None
             return self._area_along(u_px, v_px, heading_rad)
         return self._cached("area", self._area, u_px, v_px)
+
+    def along_ray(self, pixels: np.ndarray, range_m: float) -> np.ndarray | None:
+        """North, east and height above the floor (N, 3) of the points ``range_m``
+        along the rays of pixels (N, 2): where a thing of known size seen at those
+        pixels lies, off the floor too. None for a geometry without the camera."""
+        if self._along_ray is None:
+            return None
+        return np.asarray(self._along_ray(np.asarray(pixels, np.float64).reshape(-1, 2), range_m))
 
     def floor_ne_m(self, pixels: np.ndarray) -> np.ndarray:
         """Floor points (N, 2) of pixels (N, 2) in metres; rows off the usable floor
@@ -208,7 +221,15 @@ class FrameGeometry:
         def floor(px: np.ndarray) -> np.ndarray:
             return plane(px, 0.0)
 
-        return cls(mpp, area, floor, plane, _pixel_map(camera, pose, params), area_along)
+        return cls(
+            mpp,
+            area,
+            floor,
+            plane,
+            _pixel_map(camera, pose, params),
+            area_along,
+            _ray_map(camera, pose, params),
+        )
 
 
 def _plane_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> PlaneMap:
@@ -236,6 +257,21 @@ def _plane_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams)
         return ne
 
     return plane
+
+
+def _ray_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> RayMap:
+    from fusion.camera import rotation_zyx
+
+    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
+    centre, r_ned_cam = camera.camera_pose_ned(vehicle, r_ned_body)
+    floor_down = pose.down_m + params.floor_down_m
+
+    def along(px: np.ndarray, range_m: float) -> np.ndarray:
+        points = centre + range_m * (camera.rays_camera(px) @ r_ned_cam.T)
+        return np.column_stack([points[:, :2], floor_down - points[:, 2]])
+
+    return along
 
 
 def _pixel_map(camera: CameraModel, pose: PoseSample, params: GeolocationParams) -> PixelMap:

@@ -41,6 +41,7 @@ tests. Its largest size is not tested: a photo can be a close-up.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -54,6 +55,8 @@ from companion.vision.thermal_track import ThermalMemory
 from fusion.types import Detection
 
 SOURCE = "thermal"
+# The most of a body a lone warm part (a hand, a face, a forearm) shows.
+PART_SHARE_MAX = 0.05
 # A whole lying adult's silhouette on the floor (1.7 m x 0.45 m, 3/4 of it filled),
 # what a photo's pixel prior stands for.
 BODY_AREA_M2 = 1.7 * 0.45 * DEFAULT_SILHOUETTE_FILL
@@ -210,16 +213,31 @@ class ThermalDetector:
         expected: float | None = None
         floor_uv: tuple[float, float] | None = None
         if geometry is not None:
-            on_floor = _floor_share(geometry, u, vs + y0)
-            if on_floor < p.min_floor_share or geometry.metres_per_px(u, v) is None:
-                return reject("above the floor or out of range")
-            mask = np.zeros(t.shape, bool)
-            mask[y0:y1, x0:x1] = roi
-            # Its size as the floor area of the share of a lying adult it shows: the
-            # pixels a whole body would cover where it lies (a 3-D body's side, as a
-            # low camera sees it), not its pixels' floor metres, which a body's upper
-            # surface seen near the horizon stretches to metres beyond it.
-            floor_uv = blob_floor_pixel(mask, geometry, False, self._floor)
+            raised = None
+            skin = float(np.median(vals)) >= p.raised_skin_c
+            if skin and not _on_floor_as_a_person(
+                geometry, t, roi, box, area_px, u, v, vs, p, self._floor
+            ):
+                raised = _raised_part(geometry, box, p)
+            if raised is not None:
+                height_m, floor_uv = raised
+                if height_m > p.max_raised_m:
+                    return reject(
+                        f"{height_m:.1f} m above the floor: higher than debris a person lies under"
+                    )
+                if floor_uv is None:
+                    return reject("above the floor or out of range")
+            else:
+                on_floor = _floor_share(geometry, u, vs + y0)
+                if on_floor < p.min_floor_share or geometry.metres_per_px(u, v) is None:
+                    return reject("above the floor or out of range")
+                mask = np.zeros(t.shape, bool)
+                mask[y0:y1, x0:x1] = roi
+                # Its size as the floor area of the share of a lying adult it shows:
+                # the pixels a whole body would cover where it lies (a 3-D body's side,
+                # as a low camera sees it), not its pixels' floor metres, which a body's
+                # upper surface seen near the horizon stretches to metres beyond it.
+                floor_uv = blob_floor_pixel(mask, geometry, False, self._floor)
             fu, fv = floor_uv if floor_uv is not None else (u, float(y1) - 0.5)
             whole_px = geometry.expected_body_area_px(fu, fv)
             if whole_px is None:
@@ -231,7 +249,8 @@ class ThermalDetector:
                 return reject(f"{area_m2:.2f} m² is larger than a person")
             if area_m2 >= p.flat_min_area_m2 and spread < p.flat_std_k:
                 return reject(f"large and flat ({area_m2:.2f} m², spread {spread:.2f} K)")
-            part = area_m2 <= p.part_max_area_m2
+            # A raised part was placed by a face's or a hand's size: a part.
+            part = raised is not None or area_m2 <= p.part_max_area_m2
             key = _floor_key(geometry, u, v)
             in_metres = key is not None
         else:
@@ -250,7 +269,7 @@ class ThermalDetector:
         if score < self.min_score:
             return reject(f"score {score:.2f} under min_score {self.min_score:.2f}")
         if geometry is not None:
-            if part:  # a lone part lies where it meets the floor
+            if part and raised is None:  # a lone part lies where it meets the floor
                 mask = np.zeros(t.shape, bool)
                 mask[y0:y1, x0:x1] = roi
                 floor_uv = blob_floor_pixel(mask, geometry, True, self._floor)
@@ -267,12 +286,91 @@ class ThermalDetector:
             source=SOURCE,
             cues=cues,
             expected_area_px=expected,
+            # A hand or a face alone is a few percent of a body, whatever the pixels
+            # around it that its warmth blurs into: CRITICAL (issue 41).
+            seen_share_max=PART_SHARE_MAX if part else None,
         )
         result.finds.append(ThermalFind(det, peak, mean, area_m2))
 
 
 def _box(stat: np.ndarray) -> tuple[int, int, int, int]:
     return (int(stat[0]), int(stat[1]), int(stat[2]), int(stat[3]))
+
+
+def _on_floor_as_a_person(
+    geometry: FrameGeometry,
+    t: np.ndarray,
+    roi: np.ndarray,
+    box: tuple[int, int, int, int],
+    area_px: float,
+    u: float,
+    v: float,
+    vs: np.ndarray,
+    p: ThermalDetectorParams,
+    floor: FloorParams,
+) -> bool:
+    """Whether the region makes sense lying on the floor: its pixels on the floor and
+    its size there no larger than a person. Only one that does not is tried as a part
+    raised on debris (a face over a slab's edge reads, placed on the floor behind
+    it, as metres of warmth, or lies above the horizon)."""
+    x0, y0, w, h = box
+    if _floor_share(geometry, u, vs + y0) < p.min_floor_share:
+        return False
+    # A body lying on the floor is no higher than the camera (0.3 m on a rover): a
+    # region reaching above the horizon is raised, or no one lying.
+    top = geometry.along_ray(np.array([[u, y0 + 0.5]]), 1.0)
+    camera = geometry.along_ray(np.array([[u, y0 + 0.5]]), 0.0)
+    if top is not None and camera is not None and top[0, 2] > camera[0, 2]:
+        return False
+    if geometry.metres_per_px(u, v) is None:
+        return False
+    mask = np.zeros(t.shape, bool)
+    mask[y0 : y0 + h, x0 : x0 + w] = roi
+    floor_uv = blob_floor_pixel(mask, geometry, False, floor)
+    fu, fv = floor_uv if floor_uv is not None else (u, float(y0 + h) - 0.5)
+    whole_px = geometry.expected_body_area_px(fu, fv)
+    return whole_px is not None and area_px / whole_px * BODY_AREA_M2 <= p.max_area_m2
+
+
+def _raised_part(
+    geometry: FrameGeometry, box: tuple[int, int, int, int], p: ThermalDetectorParams
+) -> tuple[float, tuple[float, float] | None] | None:
+    """For a compact region nearer than its floor contact says (see
+    ThermalDetectorParams.part_size_m): its bottom's height above the floor and the
+    pixel of the floor point below it; None for a region that is not such a part."""
+    x, y, w, h = box
+    if max(w, h) > p.raised_aspect_max * min(w, h):
+        return None  # elongated: a limb along the floor, a pipe
+    uc, vc = x + 0.5 * w, y + 0.5 * h
+    corners = np.array([[x, vc], [x + w, vc], [uc, y], [uc, y + h], [uc, y + h - 0.5]])
+    at_1m = geometry.along_ray(corners, 1.0)
+    at_0 = geometry.along_ray(corners[-1:], 0.0)
+    if at_1m is None or at_0 is None:
+        return None
+    extent_rad = max(
+        float(np.linalg.norm(at_1m[0] - at_1m[1])), float(np.linalg.norm(at_1m[2] - at_1m[3]))
+    )
+    if extent_rad <= 0.0:
+        return None
+    range_m = p.part_size_m / extent_rad
+    camera_m, drop_per_m = float(at_0[0, 2]), float(at_0[0, 2] - at_1m[4, 2])
+    floor_range_m = camera_m / drop_per_m if drop_per_m > 1e-6 else math.inf
+    if range_m >= _RAISED_MARGIN * floor_range_m:
+        return None  # where its floor contact says, or farther: on the floor
+    point = geometry.along_ray(corners[-1:], range_m)
+    assert point is not None  # the geometry has rays (checked above)
+    pixel = geometry.pixels_of_floor(point[:, :2])
+    floor_uv = None
+    if pixel is not None and np.isfinite(pixel).all():
+        floor_uv = (float(pixel[0, 0]), float(pixel[0, 1]))
+        if geometry.metres_per_px(*floor_uv) is None:
+            floor_uv = None
+    return float(point[0, 2]), floor_uv
+
+
+# A part counts as raised when its size puts it nearer than this share of the range
+# its floor contact gives (the size prior's own spread: faces and hands differ).
+_RAISED_MARGIN = 0.8
 
 
 def _floor_share(geometry: FrameGeometry, u: float, vs: np.ndarray) -> float:

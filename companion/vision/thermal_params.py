@@ -63,6 +63,18 @@ class ThermalDetectorParams:
     track_radius_m: float = 0.4
     track_radius_px: float = 8.0
     track_forget_s: float = 5.0
+    # A compact warm region (its box no longer than raised_aspect_max times its
+    # width) nearer than its floor contact says, by its size against a face's or a
+    # hand's (part_size_m, its longest warm extent), is a part raised on debris: a
+    # hand on a pile, a face over a slab's edge. It is placed at the range its size
+    # gives, on the floor below it; higher than max_raised_m above the floor it is
+    # no one lying (a warm pipe, a radiator's top).
+    part_size_m: float = 0.18
+    max_raised_m: float = 0.9
+    raised_aspect_max: float = 3.0
+    # ... and is bare skin: at least half its warm pixels this warm (clothing reads
+    # 26-31 °C, a face 33-35 °C, a hand 28-34 °C in a room).
+    raised_skin_c: float = 31.0
     # In a stream of frames the ambient level may rise at most this fast (K/s): a
     # person filling most of the view (closer than about 1 m) lifts the frame's
     # median to body temperature, the room does not warm that fast. It falls at once.
