@@ -128,6 +128,25 @@ def _half_fov_rad(camera: CameraModel) -> float:
     return widest + math.radians(5.0)
 
 
+@functools.lru_cache(maxsize=8)
+def _view_bounds(camera: CameraModel) -> tuple[float, float]:
+    """The largest |x/z| and |y/z| (undistorted) of the image's border pixels."""
+    k = camera.intrinsics
+    u = np.linspace(-0.5, k.width_px - 0.5, 65)
+    v = np.linspace(-0.5, k.height_px - 0.5, 49)
+    border = np.vstack(
+        [
+            np.column_stack([u, np.full(len(u), -0.5)]),
+            np.column_stack([u, np.full(len(u), k.height_px - 0.5)]),
+            np.column_stack([np.full(len(v), -0.5), v]),
+            np.column_stack([np.full(len(v), k.width_px - 0.5), v]),
+        ]
+    )
+    rays = camera.rays_camera(border)
+    xy = np.abs(rays[:, :2] / rays[:, 2:3])
+    return float(xy[:, 0].max()), float(xy[:, 1].max())
+
+
 def footprint(
     camera: CameraModel,
     pose: PoseSample,
@@ -183,6 +202,13 @@ def footprint(
     cells, ne, range_m = cells[near], ne[near], range_m[near]
     points = np.column_stack([ne, np.full(len(ne), floor_down_m)])
     px, inside = camera.project_ned(points, vehicle, r_ned_body)
+    # Within the view's undistorted bounds: a strong lens's polynomial folds points far
+    # outside the view (beside or under the camera) back into the image.
+    rel = (points - centre) @ r_ned_cam
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = np.abs(rel[:, :2] / rel[:, 2:3])
+    bound_x, bound_y = _view_bounds(camera)
+    inside &= (xy[:, 0] <= bound_x) & (xy[:, 1] <= bound_y)
     k = camera.intrinsics
     m = _EDGE_MARGIN_PX
     inside &= (

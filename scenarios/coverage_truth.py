@@ -56,6 +56,13 @@ class CoverageTruth:
         self.reach_m = reach_m
         self.min_visible_share = min_visible_share
         self._rays_cam = camera_rays(camera)
+        # The largest |x/z| and |y/z| of the image's pixels (undistorted), with 5 %.
+        self._bound_xy = 1.05 * np.array(
+            [
+                np.abs(self._rays_cam[0] / self._rays_cam[2]).max(),
+                np.abs(self._rays_cam[1] / self._rays_cam[2]).max(),
+            ]
+        )
         self._solids = Solids(world, None, camera)
 
     def frame(self, pose: PoseLike) -> SeenCells:
@@ -85,6 +92,11 @@ class CoverageTruth:
         rel = (ned - centre) @ r_nc  # the camera frame, z forward
         k = self.camera.intrinsics
         visible = (rel[:, 2] > 1e-3) & (dist <= self.reach_m)
+        # Within the view's undistorted bounds: a strong lens's polynomial folds points
+        # far outside the view back into the image.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = np.abs(rel[:, :2] / rel[:, 2:3])
+        visible &= (xy[:, 0] <= self._bound_xy[0]) & (xy[:, 1] <= self._bound_xy[1])
         safe = rel.copy()
         safe[~visible, 2] = 1.0
         uv = np.rint(self.camera.project_camera(safe)).astype(np.int64)

@@ -112,3 +112,25 @@ def test_thermal_frames_add_the_thermal_cameras_footprint() -> None:
     # Both looked at a cell 4.4 m ahead: independent chances, thermal's and colour's.
     want = 1 - (1 - THERMAL.at(np.array([4.41]))[0]) * (1 - COLOUR_LIT.at(np.array([4.41]))[0])
     assert grid.p_at(ahead)[0] == pytest.approx(want, abs=0.02)
+
+
+def test_a_strong_lens_claims_no_floor_folded_back_into_its_image() -> None:
+    # bench/accuracy.py's cheap wide-angle lens: its polynomial maps points far outside
+    # the view (beside and under the camera) back into the image.
+    import dataclasses
+
+    from bench.accuracy import WIDE_LENS_DISTORTION
+
+    base = default_camera()
+    wide = dataclasses.replace(
+        base, intrinsics=dataclasses.replace(base.intrinsics, distortion=WIDE_LENS_DISTORTION)
+    )
+    grid = CoverageGrid()
+    look = footprint(wide, _pose(), GeolocationParams(), grid, COLOUR_LIT)
+    ne = grid.centres_ne_m(look.cells)
+    assert len(ne) > 200
+    # Every cell ahead of the camera, within its field of view (wider than 70 deg
+    # now: the lens's barrel widens it), and none at the camera's feet.
+    bearing = np.degrees(np.arctan2(ne[:, 1], ne[:, 0] - 0.15))
+    assert np.abs(bearing).max() < 60.0
+    assert ne[:, 0].min() > 0.3
