@@ -253,6 +253,8 @@ def _missing_thermal(config: Config) -> list[str]:
         return []
     source = config.thermal.source
     spec = parse_thermal_source(source)  # checked when the config was loaded
+    if spec.kind == "sim":
+        return []  # a network camera: the service waits for it and says so
     if spec.kind == "frames":
         if not Path(spec.target).is_dir():
             return [f"thermal.source = {source!r}: no such thermal frames folder {spec.target}"]

@@ -212,3 +212,9 @@ def test_check_config_looks_for_a_purethermal_board(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert "thermal.source = 'lepton': lepton: no PureThermal board found" in result.stderr
     assert _check(tmp_path, '[thermal]\nsource = "lepton"\n', "--no-devices").returncode == 0
+
+
+def test_check_config_accepts_the_simulators_thermal_camera(tmp_path: Path) -> None:
+    # A network camera: the service waits for it; there is no device to look for.
+    result = _check(tmp_path, '[thermal]\nsource = "sim:127.0.0.1:5601"\n')
+    assert result.returncode == 0, result.stderr
