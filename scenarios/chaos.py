@@ -289,7 +289,11 @@ def run_chaos(
     stop = threading.Event()
     with (
         small_disk(state_dir) as disk_problem,
-        LiveSim(world, fps=CAMERA_FPS, speed_m_s=SPEED_M_S, seed=seed, route=route) as sim,
+        # The chaos mission tests the service's survival, with the colour camera
+        # only: no thermal camera rendered that nobody reads.
+        LiveSim(
+            world, fps=CAMERA_FPS, speed_m_s=SPEED_M_S, seed=seed, route=route, thermal=False
+        ) as sim,
         Radio(
             ("127.0.0.1", sim.rover.local_address(1)[1]),
             loss=LOSS,
