@@ -141,6 +141,6 @@ class ActionSender:
             )
             self._event(
                 f"action {seq} {what} by robot {robot}: not applied "
-                "(the robot does not know that victim or cannot do it)",
+                "(the robot does not know that victim, cannot do it, or already applied a newer decision for it)",
                 level=logging.WARNING,
             )

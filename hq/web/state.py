@@ -165,7 +165,8 @@ def _why_refused(a: Action) -> str:
     else:
         answer = f"answered with unknown result {a.ack_result}"
     return (
-        f"{answer}: the robot does not know that victim or cannot do it; "
+        f"{answer}: the robot does not know that victim, cannot do it, or already applied "
+        "a newer decision for it; "
         "not applied, the victim stays as the robots report it"
     )
 
