@@ -398,3 +398,17 @@ def test_a_warm_pipe_high_on_a_wall_is_no_one_lying() -> None:
     result = ThermalDetector().analyse(t, geometry, 0.0)
     assert result.finds == []
     assert any("above the floor" in r.reason for r in result.rejected)
+
+
+def test_heat_through_a_blanket_finds_a_person_but_shows_none_of_them() -> None:
+    # A person under a blanket (5 K over the floor through it) with one hand out:
+    # one find where the body lies, but only the bare hand is seen: CRITICAL.
+    t = _scene()
+    _ellipse(t, (80, 80), (1.7, 0.6), 23.0)  # the blanket over the body
+    _ellipse(t, (110, 92), (0.12, 0.08), 33.0)  # the hand out of it
+    geometry = _geometry()
+    (find,) = ThermalDetector().analyse(t, geometry, 0.0).finds
+    d = find.detection
+    assert find.area_m2 is not None and find.area_m2 > 0.3  # a body's size: the blanket
+    assessment = assess(d, geometry)
+    assert assessment is not None and assessment.urgency == Urgency.CRITICAL

@@ -218,7 +218,7 @@ class ThermalDetector:
             if skin and not _on_floor_as_a_person(
                 geometry, t, roi, box, area_px, u, v, vs, p, self._floor
             ):
-                raised = _raised_part(geometry, box, p)
+                raised = _raised_part(geometry, box, p, t.shape)
             if raised is not None:
                 height_m, floor_uv = raised
                 if height_m > p.max_raised_m:
@@ -275,13 +275,17 @@ class ThermalDetector:
                 floor_uv = blob_floor_pixel(mask, geometry, True, self._floor)
             if floor_uv is not None:
                 u, v = floor_uv
+        # Seen: bare warmth; heat through thin cover finds a person, it shows none of it.
+        seen_px = area_px
+        if geometry is not None:
+            seen_px = float(np.count_nonzero(vals >= amb + p.bare_min_contrast_k))
         cues = ("warm", "warm_part") if part else ("warm",)
         det = Detection(
             t_mono_s=t_mono_s,
             u_px=u,
             v_px=v,
             bbox_xywh_px=box,
-            visible_area_px=area_px,
+            visible_area_px=seen_px,
             score=score,
             source=SOURCE,
             cues=cues,
@@ -333,7 +337,10 @@ def _on_floor_as_a_person(
 
 
 def _raised_part(
-    geometry: FrameGeometry, box: tuple[int, int, int, int], p: ThermalDetectorParams
+    geometry: FrameGeometry,
+    box: tuple[int, int, int, int],
+    p: ThermalDetectorParams,
+    shape: tuple[int, ...],
 ) -> tuple[float, tuple[float, float] | None] | None:
     """For a compact region nearer than its floor contact says (see
     ThermalDetectorParams.part_size_m): its bottom's height above the floor and the
@@ -341,6 +348,9 @@ def _raised_part(
     x, y, w, h = box
     if max(w, h) > p.raised_aspect_max * min(w, h):
         return None  # elongated: a limb along the floor, a pipe
+    height_px, width_px = shape
+    if x <= 0 or y <= 0 or x + w >= width_px or y + h >= height_px:
+        return None  # cut by the frame: its size says nothing of its range
     uc, vc = x + 0.5 * w, y + 0.5 * h
     corners = np.array([[x, vc], [x + w, vc], [uc, y], [uc, y + h], [uc, y + h - 0.5]])
     at_1m = geometry.along_ray(corners, 1.0)

@@ -75,6 +75,11 @@ class ThermalDetectorParams:
     # ... and is bare skin: at least half its warm pixels this warm (clothing reads
     # 26-31 °C, a face 33-35 °C, a hand 28-34 °C in a room).
     raised_skin_c: float = 31.0
+    # With a geometry (a rover's frames), warm pixels less than this above ambient
+    # are a body's heat through thin cover (a blanket, dust: 5-7 K where bare
+    # clothing shows 10 K and skin 15): they find and place a person but do not count
+    # as seen for its visible share (its urgency).
+    bare_min_contrast_k: float = 8.0
     # In a stream of frames the ambient level may rise at most this fast (K/s): a
     # person filling most of the view (closer than about 1 m) lifts the frame's
     # median to body temperature, the room does not warm that fast. It falls at once.
