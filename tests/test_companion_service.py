@@ -248,7 +248,7 @@ def test_thermal_frames_are_recorded_beside_the_colour_frames(
     (recorded,) = (tmp_path / "state" / "thermal").iterdir()
     assert sorted(p.name for p in recorded.iterdir()) == sorted(p.name for p in folder.iterdir())
     (colour,) = (tmp_path / "state" / "frames").iterdir()
-    assert len(list(colour.iterdir())) > 10
+    assert len(list(colour.iterdir())) >= 5  # the colour camera's too
 
 
 def test_watchdog_pings_stop_when_processing_stalls(
