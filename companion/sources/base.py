@@ -176,22 +176,30 @@ class ThreadedSource(ABC, Generic[P]):
         finally:
             self._release()
 
+    def _take(self, deadline: float, timeout_s: float) -> _Grabbed[P]:
+        """The newest grabbed payload, waiting until ``deadline`` (monotonic; the read's
+        ``timeout_s`` names it in the message): CameraTimeout when none comes,
+        CameraError once closed, the grabber's error when it failed. Subclasses whose
+        frames are not colour ``Frame``s (the thermal cameras) read through it too."""
+        with self._cond:
+            while self._latest is None and self._error is None and not self._closed:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    raise CameraTimeout(f"{self.name}: no frame within {timeout_s:.3g} s")
+                self._cond.wait(remaining)
+            if self._closed:
+                raise CameraError(f"{self.name}: closed")
+            grabbed = self._latest
+            if grabbed is None:
+                assert self._error is not None  # loop exit condition
+                raise self._error
+            self._latest = None
+            return grabbed
+
     def read(self, timeout_s: float) -> Frame:
         deadline = time.monotonic() + max(0.0, timeout_s)
         while True:
-            with self._cond:
-                while self._latest is None and self._error is None and not self._closed:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0.0:
-                        raise CameraTimeout(f"{self.name}: no frame within {timeout_s:.3g} s")
-                    self._cond.wait(remaining)
-                if self._closed:
-                    raise CameraError(f"{self.name}: closed")
-                grabbed = self._latest
-                if grabbed is None:
-                    assert self._error is not None  # loop exit condition
-                    raise self._error
-                self._latest = None
+            grabbed = self._take(deadline, timeout_s)
             image = self._decode(grabbed.payload)
             if image is not None:
                 return Frame(image, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)

@@ -24,7 +24,7 @@ from typing import Any, Literal, Protocol
 import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, CameraTimeout, ThreadedSource
+from companion.sources.base import CameraError, ThreadedSource
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_raw import (
     GIVE_UP_AFTER_S,
@@ -175,23 +175,11 @@ class ThermalCaptureSource(ThreadedSource[np.ndarray]):
         self._cap.release()
 
     # ThreadedSource.read is typed for colour Frames; this one returns ThermalFrames
-    # and waits for the newest grabbed frame the same way.
+    # and waits for the newest grabbed frame the same way (ThreadedSource._take).
     def read(self, timeout_s: float) -> ThermalFrame:  # type: ignore[override]
         deadline = time.monotonic() + max(0.0, timeout_s)
         while True:
-            with self._cond:
-                while self._latest is None and self._error is None and not self._closed:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0.0:
-                        raise CameraTimeout(f"{self.name}: no frame within {timeout_s:.3g} s")
-                    self._cond.wait(remaining)
-                if self._closed:
-                    raise CameraError(f"{self.name}: closed")
-                grabbed = self._latest
-                if grabbed is None:
-                    assert self._error is not None  # loop exit condition
-                    raise self._error
-                self._latest = None
+            grabbed = self._take(deadline, timeout_s)
             temps_c = self._judge.judge(self._decode(grabbed.payload), grabbed.t_mono_s)
             if temps_c is not None:
                 return ThermalFrame(temps_c, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)

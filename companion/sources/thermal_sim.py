@@ -23,7 +23,7 @@ import time
 import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, CameraTimeout, truncation
+from companion.sources.base import CameraError, truncation
 from companion.sources.sim import SimSource
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_raw import GIVE_UP_AFTER_S, ThermalJudge, not_temperatures
@@ -74,23 +74,11 @@ class ThermalSimSource(SimSource):
         return kelvin
 
     # ThreadedSource.read is typed for colour Frames; this one returns ThermalFrames
-    # and waits for the newest grabbed frame the same way.
+    # and waits for the newest grabbed frame the same way (ThreadedSource._take).
     def read(self, timeout_s: float) -> ThermalFrame:  # type: ignore[override]
         deadline = time.monotonic() + max(0.0, timeout_s)
         while True:
-            with self._cond:
-                while self._latest is None and self._error is None and not self._closed:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0.0:
-                        raise CameraTimeout(f"{self.name}: no frame within {timeout_s:.3g} s")
-                    self._cond.wait(remaining)
-                if self._closed:
-                    raise CameraError(f"{self.name}: closed")
-                grabbed = self._latest
-                if grabbed is None:
-                    assert self._error is not None  # loop exit condition
-                    raise self._error
-                self._latest = None
+            grabbed = self._take(deadline, timeout_s)
             kelvin = self._decode(grabbed.payload)
             if kelvin is None:
                 self.frames_corrupt += 1
