@@ -18,6 +18,7 @@ relative to the vehicle, whose height above it is known from the mount.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -33,7 +34,6 @@ _ANGLE_STEP_RAD = 1e-6
 _MIN_DOWN_COMPONENT = 1e-9  # a ray must descend at least this much per metre
 _Z_NEAR_M = 0.01  # body outlines are clipped to this distance in front of the camera
 _BODY_HEADINGS = 12  # headings averaged for the expected body area (over 180 degrees)
-_EDGE_SAMPLES = 4  # points per rectangle edge before clipping
 
 
 @dataclass(frozen=True)
@@ -181,26 +181,7 @@ def _camera_frame(camera: CameraModel, pose: PoseSample, points_ned: FloatArray)
     return (points_ned - centre) @ r_ned_cam  # rows of R^T (p - c)
 
 
-Plane = tuple[float, float, float]  # (a, b, c): the half-space a x + b y + c z >= 0
-
-
-def _clip(polygon: FloatArray, plane: Plane, offset: float = 0.0) -> FloatArray:
-    """Sutherland-Hodgman clip of a closed 3D polygon to a x + b y + c z >= offset."""
-    if len(polygon) == 0:
-        return polygon
-    f = polygon @ np.array(plane) - offset
-    out: list[FloatArray] = []
-    n = len(polygon)
-    for i in range(n):
-        j = (i + 1) % n
-        if f[i] >= 0.0:
-            out.append(polygon[i])
-        if (f[i] >= 0.0) != (f[j] >= 0.0):
-            s = f[i] / (f[i] - f[j])
-            out.append(polygon[i] + s * (polygon[j] - polygon[i]))
-    return np.array(out) if out else np.empty((0, 3))
-
-
+@functools.lru_cache(maxsize=8)
 def _image_bounds(camera: CameraModel) -> tuple[float, float, float, float]:
     """The image rectangle in normalized undistorted coordinates (x0, x1, y0, y1):
     the median of each edge, undistorted (exact without distortion)."""
@@ -225,40 +206,112 @@ def _image_bounds(camera: CameraModel) -> tuple[float, float, float, float]:
     )
 
 
-def _clip_to_view(
-    polygon: FloatArray, bounds: tuple[float, float, float, float] | None
-) -> FloatArray:
-    """Clip to z >= z_near and, given image bounds, to the view frustum
-    x0 z <= x <= x1 z, y0 z <= y <= y1 z."""
-    out = _clip(polygon, (0.0, 0.0, 1.0), _Z_NEAR_M)
+# A box's 12 edges as pairs of corner indices of _box_vertices' corners (0-3 on its
+# bottom, 4-7 above them).
+_BOX_EDGES = np.array(
+    [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+)
+_EPS_M = 1e-9  # on a plane, within rounding
+
+
+def _view_planes(
+    bounds: tuple[float, float, float, float] | None,
+) -> tuple[FloatArray, FloatArray]:
+    """The view's half-spaces n . p >= offset in the camera frame: the near plane
+    and, given image bounds, the frustum's four sides (x0 z <= x <= x1 z, ...)."""
+    normals = [(0.0, 0.0, 1.0)]
     if bounds is not None:
         x0, x1, y0, y1 = bounds
-        for plane in ((1.0, 0.0, -x0), (-1.0, 0.0, x1), (0.0, 1.0, -y0), (0.0, -1.0, y1)):
-            out = _clip(out, plane)
-    return out
+        normals += [(1.0, 0.0, -x0), (-1.0, 0.0, x1), (0.0, 1.0, -y0), (0.0, -1.0, y1)]
+    offsets = [_Z_NEAR_M] + [0.0] * (len(normals) - 1)
+    return np.array(normals), np.array(offsets)
 
 
-def _shoelace(xy: FloatArray) -> float:
-    x, y = xy[:, 0], xy[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+def _view_edges(bounds: tuple[float, float, float, float] | None) -> list[FloatArray]:
+    """The frustum's edges as segments (2, 3) in the camera frame: its four side
+    edges from the near plane out to far beyond any body, and the near rectangle's."""
+    if bounds is None:
+        return []
+    x0, x1, y0, y1 = bounds
+    near = [np.array([x, y, 1.0]) * _Z_NEAR_M for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
+    far = [c * (1e4 / _Z_NEAR_M) for c in near]
+    return [np.array([near[i], far[i]]) for i in range(4)] + [
+        np.array([near[i], near[(i + 1) % 4]]) for i in range(4)
+    ]
 
 
-def _body_outline(length_m: float, width_m: float, heading_rad: float) -> FloatArray:
-    """Rectangle outline (N, 2) in north/east offsets, edges subdivided."""
-    corners = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length_m / 2, width_m / 2]
-    s = np.linspace(0.0, 1.0, _EDGE_SAMPLES, endpoint=False)[:, None]
-    local = np.vstack(
-        [a + s * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True)]
-    )
-    c, sn = math.cos(heading_rad), math.sin(heading_rad)
-    return local @ np.array([[c, sn], [-sn, c]])  # rotate by heading (north towards east)
+def _box_vertices(
+    camera: CameraModel,
+    pose: PoseSample,
+    north_m: float,
+    east_m: float,
+    params: GeolocationParams,
+    headings: list[float],
+    bounds: tuple[float, float, float, float] | None,
+) -> list[FloatArray]:
+    """Per heading, the vertices (K, 3) in the camera frame of the part of a lying
+    body's box (on the floor at north/east, along that heading) inside the view:
+    its corners in view, its edges' crossings of the view's sides and the view's
+    edges' crossings of its faces. Perspective keeps convexity, so the silhouette of
+    what the frame shows of the box is the convex hull of these vertices' images."""
+    floor = _floor_down(pose, params)
+    height = params.body_height_m
+    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    centre, r_ned_cam = camera.camera_pose_ned(_vehicle(pose), r_ned_body)
+    h = np.asarray(headings)
+    zeros, ones = np.zeros_like(h), np.ones_like(h)
+    along = np.stack([np.cos(h), np.sin(h), zeros], axis=1)  # (H, 3) in NED
+    across = np.stack([-np.sin(h), np.cos(h), zeros], axis=1)
+    down = np.stack([zeros, zeros, ones], axis=1)
+    box_centre = np.array([north_m, east_m, floor - height / 2])
+    half = (params.body_length_m / 2, params.body_width_m / 2, height / 2)
+    signs = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
+    ne = (
+        signs[None, :, :1] * half[0] * along[:, None, :]
+        + signs[None, :, 1:] * half[1] * across[:, None, :]
+    )  # (H, 4, 3)
+    corners_ned = np.concatenate([ne + half[2] * down[:, None], ne - half[2] * down[:, None]], 1)
+    corners = (corners_ned + box_centre - centre) @ r_ned_cam  # (H, 8, 3) in the camera frame
+    # The box's six faces as outward half-spaces n . p <= offset in the camera frame.
+    axes = np.stack([along, -along, across, -across, down, -down], axis=1)  # (H, 6, 3)
+    box_n = axes @ r_ned_cam
+    box_off = np.repeat(np.array(half), 2)[None, :] + axes @ (box_centre - centre)
+    view_n, view_off = _view_planes(bounds)
+
+    def in_view(points: FloatArray) -> FloatArray:
+        return ((points @ view_n.T - view_off) >= -_EPS_M).all(axis=-1)
+
+    def in_box(points: FloatArray) -> FloatArray:  # points (H, M, 3)
+        return (np.einsum("hmk,hfk->hmf", points, box_n) <= box_off[:, None, :] + _EPS_M).all(-1)
+
+    # the box's edges crossing the view's planes
+    a, b = corners[:, _BOX_EDGES[:, 0]], corners[:, _BOX_EDGES[:, 1]]  # (H, 12, 3)
+    fa, fb = a @ view_n.T - view_off, b @ view_n.T - view_off  # (H, 12, P)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = fa / (fa - fb)
+    crossing = (fa >= 0.0) != (fb >= 0.0)
+    s = np.where(crossing, s, np.nan)
+    cuts = (a[:, :, None] + s[..., None] * (b - a)[:, :, None]).reshape(len(h), -1, 3)
+    found = [corners, cuts]
+    # the view's edges crossing the box's faces
+    for seg in _view_edges(bounds):
+        p0, d = seg[0], seg[1] - seg[0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (box_off - box_n @ p0) / (box_n @ d)  # (H, 6)
+        t = np.where((t >= 0.0) & (t <= 1.0), t, np.nan)
+        found.append(p0 + t[..., None] * d)
+    points = np.concatenate(found, axis=1)  # (H, M, 3), nan rows where nothing crosses
+    ok = np.isfinite(points).all(-1)
+    safe = np.where(ok[..., None], points, 0.0)
+    ok &= in_view(safe) & in_box(safe)
+    return [points[i][ok[i]] for i in range(len(h))]
 
 
-def _convex_hull(points: FloatArray) -> FloatArray:
-    """Convex hull (Andrew's monotone chain), counter-clockwise, of (N, 2) points."""
-    pts = sorted(set(map(tuple, np.round(points, 12))))
+def _hull_area(points: FloatArray) -> float:
+    """Area of the convex hull (Andrew's monotone chain) of (N, 2) points."""
+    pts = sorted(set(map(tuple, np.round(points, 12).tolist())))
     if len(pts) < 3:
-        return np.asarray(pts, float).reshape(-1, 2)
+        return 0.0
 
     def half(seq: list[tuple[float, float]]) -> list[tuple[float, float]]:
         out: list[tuple[float, float]] = []
@@ -275,31 +328,11 @@ def _convex_hull(points: FloatArray) -> FloatArray:
             out.append(p)
         return out
 
-    lower, upper = half(pts), half(pts[::-1])
-    return np.asarray(lower[:-1] + upper[:-1], float)
-
-
-def _box_faces(outline_ne: FloatArray, bottom_down: float, top_down: float) -> list[FloatArray]:
-    """The faces (NED polygons) of the prism over a floor outline: its top (or the
-    outline itself when the prism is flat) and one side per outline edge."""
-    n = len(outline_ne)
-    top = np.column_stack([outline_ne, np.full(n, top_down)])
-    if top_down == bottom_down:
-        return [top]
-    faces = [top]
-    for i in range(n):
-        a, b = outline_ne[i], outline_ne[(i + 1) % n]
-        faces.append(
-            np.array(
-                [
-                    [a[0], a[1], bottom_down],
-                    [b[0], b[1], bottom_down],
-                    [b[0], b[1], top_down],
-                    [a[0], a[1], top_down],
-                ]
-            )
-        )
-    return faces
+    hull = half(pts)[:-1] + half(pts[::-1])[:-1]
+    twice = sum(
+        x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(hull, hull[1:] + hull[:1], strict=True)
+    )
+    return 0.5 * abs(twice)
 
 
 def _distortion_area_scale(camera: CameraModel, xy: FloatArray) -> float:
@@ -349,18 +382,12 @@ def expected_body_area_px(
         if heading_rad is None
         else [heading_rad]
     )
-    for heading in headings:
-        outline = _body_outline(params.body_length_m, params.body_width_m, heading)
-        ne = outline + np.array([north_m, east_m])
-        points = [
-            clipped[:, :2] / clipped[:, 2:3]
-            for face in _box_faces(ne, floor, floor - params.body_height_m)
-            if len(clipped := _clip_to_view(_camera_frame(camera, pose, face), bounds)) >= 3
-        ]
-        if not points:
+    for vertices in _box_vertices(camera, pose, north_m, east_m, params, headings, bounds):
+        if len(vertices) < 3:
             areas.append(0.0)
             continue
-        areas.append(_shoelace(_convex_hull(np.vstack(points))) * k.fx_px * k.fy_px)
+        xy = vertices[:, :2] / vertices[:, 2:3]
+        areas.append(_hull_area(xy) * k.fx_px * k.fy_px)
     scale = _distortion_area_scale(camera, centre_cam[:2] / centre_cam[2])
     return float(np.mean(areas)) * scale
 
