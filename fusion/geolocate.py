@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fusion.camera import CameraModel, FloatArray, rotation_zyx
 from fusion.errors import GeolocationRejected
@@ -278,10 +279,10 @@ def _box_vertices(
     box_off = np.repeat(np.array(half), 2)[None, :] + axes @ (box_centre - centre)
     view_n, view_off = _view_planes(bounds)
 
-    def in_view(points: FloatArray) -> FloatArray:
-        return ((points @ view_n.T - view_off) >= -_EPS_M).all(axis=-1)
+    def in_view(points: FloatArray) -> NDArray[np.bool_]:
+        return np.asarray((points @ view_n.T - view_off >= -_EPS_M).all(axis=-1))
 
-    def in_box(points: FloatArray) -> FloatArray:  # points (H, M, 3)
+    def in_box(points: FloatArray) -> NDArray[np.bool_]:  # points (H, M, 3)
         return (np.einsum("hmk,hfk->hmf", points, box_n) <= box_off[:, None, :] + _EPS_M).all(-1)
 
     # the box's edges crossing the view's planes
