@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 SYSTAMP := $(VENV)/.system-packages
 
-.PHONY: demo test lint typecheck pytest bench chaos fuzz fuzz-companion clean system-packages
+.PHONY: demo test lint typecheck pytest bench chaos fuzz fuzz-companion clean system-packages pi-check
 
 # Debian/Raspberry Pi OS packages the project needs: venv support for python3,
 # systemd's systemd-analyze for the unit-file tests, and chromium + chromium-driver for
@@ -75,6 +75,12 @@ FUZZ_SEED ?= $(shell od -An -N4 -tu4 /dev/urandom | tr -d ' ')
 fuzz: $(STAMP)
 	@echo "fuzz seed $(FUZZ_SEED)"
 	FUZZ_SEED=$(FUZZ_SEED) FUZZ_MESSAGES=40000 $(BIN)/python -m pytest -q tests/test_hq_fuzz.py
+
+# The README's set-up and the detect/replay results on aarch64 (a cached Debian bookworm
+# arm64 root under qemu-user), compared with this host's; fails when they differ
+# (tools/pi-check.sh; needs root; not part of `make test`: about an hour the first time).
+pi-check: $(STAMP) $(MODELS)
+	bash tools/pi-check.sh
 
 clean:
 	rm -rf $(VENV) build *.egg-info .mypy_cache .ruff_cache .pytest_cache

@@ -1,0 +1,201 @@
+#!/usr/bin/env bash
+# make pi-check: the README's set-up and the perception/replay results on aarch64, shown.
+#
+# Builds once (cached in $PI_ROOT) a Debian bookworm arm64 root with debootstrap and runs
+# it under qemu-user (Debian's qemu-user-static and binfmt-support). Each run then copies
+# the repository's HEAD into it (git archive: a clean copy, no venv, no build files),
+# runs the README's set-up there (`make .venv/.installed`: system packages, venv, pip,
+# the person models from npm), and runs, in the arm64 root and on this host alike,
+# `rescue-companion detect --json` on the real_falls frames and a replay of a short
+# recorded simulated mission. tools/pi_check.py compares the two and fails (exit 1)
+# when people, boxes, victims, urgencies or positions differ beyond its tolerances.
+#
+# Emulated time says nothing about a Pi's speed: this proves the set-up and the
+# results, not the frame rate. Needs root (debootstrap, chroot, binfmt_misc).
+set -euo pipefail
+
+REPO=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+PI_ROOT=${PI_ROOT:-/var/cache/rescue-companion/pi-root}
+PI_MIRROR=${PI_MIRROR:-http://deb.debian.org/debian}
+DATA=${PI_CHECK_DATA:-$REPO/../shared/data/images/real_falls}
+OUT=${PI_CHECK_OUT:-$REPO/build/pi-check}
+MISSION_PRESET=${PI_CHECK_PRESET:-mixed}
+MISSION_S=${PI_CHECK_MISSION_S:-15}
+# The heavy emulated work runs at the lowest priority: the machine is shared.
+NICE=(nice -n 19)
+SRC_IN_ROOT=/opt/rescue-companion
+DATA_IN_ROOT=/mnt/real_falls
+MISSION_IN_ROOT=/mnt/mission
+OUT_IN_ROOT=/mnt/out
+
+say() { printf 'pi-check: %s\n' "$*"; }
+die() { printf 'pi-check: error: %s\n' "$*" >&2; exit 2; }
+
+if [ "$(id -u)" -ne 0 ]; then
+    command -v sudo >/dev/null 2>&1 || die "needs root (debootstrap, chroot, binfmt_misc) and there is no sudo"
+    exec sudo --preserve-env=PI_ROOT,PI_MIRROR,PI_CHECK_DATA,PI_CHECK_OUT,PI_CHECK_PRESET,PI_CHECK_MISSION_S \
+        bash "${BASH_SOURCE[0]}" "$@"
+fi
+[ -d "$DATA/frames" ] || die "no real_falls frames at $DATA/frames (set PI_CHECK_DATA)"
+[ -x "$REPO/.venv/bin/rescue-companion" ] || die "no host set-up in $REPO/.venv: run make test or make demo first"
+
+host_packages() {
+    local missing=()
+    command -v debootstrap >/dev/null 2>&1 || missing+=(debootstrap)
+    [ -x /usr/bin/qemu-aarch64-static ] || missing+=(qemu-user-static)
+    command -v update-binfmts >/dev/null 2>&1 || missing+=(binfmt-support)
+    if [ ${#missing[@]} -gt 0 ]; then
+        say "installing ${missing[*]}"
+        DEBIAN_FRONTEND=noninteractive apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
+    fi
+}
+
+binfmt() {
+    local dir=/proc/sys/fs/binfmt_misc
+    if [ ! -e "$dir/status" ]; then
+        say "mounting binfmt_misc on $dir"
+        mount -t binfmt_misc binfmt_misc "$dir" || die "cannot mount binfmt_misc (a container without the privilege?)"
+    fi
+    if [ ! -e "$dir/qemu-aarch64" ]; then
+        update-binfmts --enable qemu-aarch64 >/dev/null 2>&1 || true
+    fi
+    grep -qx enabled "$dir/qemu-aarch64" 2>/dev/null \
+        || die "the qemu-aarch64 binfmt handler is not registered ($dir/qemu-aarch64); try: update-binfmts --enable qemu-aarch64"
+}
+
+build_root() {
+    local stamp=$PI_ROOT/.pi-check-root
+    if [ -e "$stamp" ]; then
+        say "arm64 root cached in $PI_ROOT"
+        return
+    fi
+    say "building a Debian bookworm arm64 root in $PI_ROOT (once; about 15 minutes)"
+    rm -rf "$PI_ROOT"
+    mkdir -p "$PI_ROOT"
+    # What the README asks of a fresh machine (python3, make); the set-up installs the rest.
+    debootstrap --foreign --arch=arm64 --variant=minbase \
+        --include=python3,make,ca-certificates bookworm "$PI_ROOT" "$PI_MIRROR"
+    install -m 0755 /usr/bin/qemu-aarch64-static "$PI_ROOT/usr/bin/"
+    "${NICE[@]}" chroot "$PI_ROOT" /debootstrap/debootstrap --second-stage
+    cat >"$PI_ROOT/etc/apt/sources.list" <<SOURCES
+deb $PI_MIRROR bookworm main
+deb $PI_MIRROR bookworm-updates main
+SOURCES
+    touch "$stamp"
+}
+
+MOUNTED=()
+mount_in_root() {  # SOURCE TARGET [ro]
+    mkdir -p "$PI_ROOT$2"
+    mount --bind "$1" "$PI_ROOT$2"
+    MOUNTED=("$PI_ROOT$2" "${MOUNTED[@]}")
+    if [ "${3:-}" = ro ]; then
+        mount -o remount,bind,ro "$PI_ROOT$2"
+    fi
+}
+unmount_leftovers() {  # a run killed before its trap: never delete through a bind mount
+    local m
+    for m in $(awk -v root="$PI_ROOT/" 'index($2, root) == 1 { print $2 }' /proc/mounts | sort -r); do
+        umount -l "$m"
+    done
+    if awk -v root="$PI_ROOT/" 'index($2, root) == 1 { found = 1 } END { exit !found }' /proc/mounts; then
+        die "something is still mounted under $PI_ROOT; unmount it by hand"
+    fi
+}
+unmount_all() {
+    local m
+    for m in "${MOUNTED[@]}"; do
+        umount -l "$m" 2>/dev/null || true
+    done
+    MOUNTED=()
+}
+in_root() {  # a command in the arm64 root, at the lowest priority, with a clean environment
+    "${NICE[@]}" chroot "$PI_ROOT" /usr/bin/env -i HOME=/root LANG=C.UTF-8 \
+        PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin "$@"
+}
+
+host_packages
+binfmt
+unmount_leftovers
+build_root
+
+if [ -n "$(git -C "$REPO" status --porcelain --untracked-files=no)" ]; then
+    say "note: checking HEAD ($(git -C "$REPO" rev-parse --short HEAD)); uncommitted changes are not part of it"
+fi
+rm -rf "$OUT"
+mkdir -p "$OUT/host" "$OUT/pi"
+
+trap unmount_all EXIT
+mount_in_root /proc /proc
+mount_in_root /sys /sys
+mount_in_root /dev /dev
+cp -L /etc/resolv.conf "$PI_ROOT/etc/resolv.conf"
+
+say "copying HEAD into the arm64 root's $SRC_IN_ROOT"
+rm -rf "${PI_ROOT:?}$SRC_IN_ROOT"
+mkdir -p "$PI_ROOT$SRC_IN_ROOT"
+git -C "$REPO" archive HEAD | tar -x -C "$PI_ROOT$SRC_IN_ROOT"
+
+say "the README's set-up in the arm64 root (make .venv/.installed; log: $OUT/pi/setup.log)"
+start=$(date +%s)
+if ! in_root bash -c "cd $SRC_IN_ROOT && make .venv/.installed" >"$OUT/pi/setup.log" 2>&1; then
+    tail -n 30 "$OUT/pi/setup.log" >&2
+    die "the set-up failed in the arm64 root (the whole log: $OUT/pi/setup.log)"
+fi
+setup_s=$(( $(date +%s) - start ))
+say "set-up done in ${setup_s} s (emulated)"
+echo "$setup_s" >"$OUT/pi/setup_seconds"
+
+# The same mission and pictures on both sides: the mission is recorded on the host
+# (simulated time: the same seed gives the same frames), then bind-mounted read-only.
+say "recording a ${MISSION_S} s '$MISSION_PRESET' mission on the host (both cameras)"
+"$REPO/.venv/bin/rescue-sim" record --preset "$MISSION_PRESET" --out "$OUT/mission" \
+    --duration-s "$MISSION_S" --fps 5 --start-unix-s 1767000000 >"$OUT/host/record.log" 2>&1 \
+    || { tail -n 20 "$OUT/host/record.log" >&2; die "rescue-sim record failed"; }
+mount_in_root "$DATA" "$DATA_IN_ROOT" ro
+mount_in_root "$OUT/mission" "$MISSION_IN_ROOT" ro
+mount_in_root "$OUT/pi" "$OUT_IN_ROOT"
+
+# detect and replay with the given data, mission and output folders, on either side
+run_side() {  # LABEL COMPANION DATA MISSION OUT [runner...]
+    local label=$1 companion=$2 data=$3 mission=$4 out=$5
+    shift 5
+    "$@" "$companion" detect --json "$data/frames" >"$OUT/$label/detect.jsonl" \
+        2>"$OUT/$label/detect.log" \
+        || { tail -n 20 "$OUT/$label/detect.log" >&2; die "$label: rescue-companion detect failed"; }
+    "$@" "$companion" replay --config "$mission/camera.toml" --tlog "$mission/mission.tlog" \
+        --frames "$mission/frames" --thermal-frames "$mission/thermal" --out "$out/replay/" \
+        >"$OUT/$label/replay.log" 2>&1 \
+        || { tail -n 20 "$OUT/$label/replay.log" >&2; die "$label: rescue-companion replay failed"; }
+}
+
+say "detect and replay on the host"
+start=$(date +%s)
+run_side host "$REPO/.venv/bin/rescue-companion" "$DATA" "$OUT/mission" "$OUT/host" "${NICE[@]}"
+echo $(( $(date +%s) - start )) >"$OUT/host/run_seconds"
+
+say "detect and replay on aarch64 (emulated)"
+start=$(date +%s)
+run_side pi "$SRC_IN_ROOT/.venv/bin/rescue-companion" "$DATA_IN_ROOT" "$MISSION_IN_ROOT" \
+    "$OUT_IN_ROOT" in_root
+echo $(( $(date +%s) - start )) >"$OUT/pi/run_seconds"
+in_root "$SRC_IN_ROOT/.venv/bin/python" -c \
+    'import platform, sys; print(platform.machine(), platform.python_version())' \
+    >"$OUT/pi/platform"
+in_root "$SRC_IN_ROOT/.venv/bin/pip" freeze --exclude-editable >"$OUT/pi/pip-freeze.txt"
+say "aarch64 side: $(cat "$OUT/pi/platform"), set-up ${setup_s} s, detect + replay $(cat "$OUT/pi/run_seconds") s (emulated: no Pi figure)"
+
+# What a Pi 5 must compute, counted on the host (the same models, the same frames).
+say "model runs a frame and multiply-accumulates a run"
+frames=$(find "$DATA/frames" -maxdepth 1 -type f | wc -l)
+mission_frames=$(find "$OUT/mission/frames" -maxdepth 1 -type f | wc -l)
+"${NICE[@]}" "$REPO/.venv/bin/python" "$REPO/tools/pi_check.py" ops "$OUT/ops.json" \
+    --detect-frames "$frames" --replay-frames "$mission_frames" -- \
+    detect --json "$DATA/frames" / \
+    replay --config "$OUT/mission/camera.toml" --tlog "$OUT/mission/mission.tlog" \
+    --frames "$OUT/mission/frames" --thermal-frames "$OUT/mission/thermal" \
+    --out "$OUT/ops-replay/" 2>"$OUT/ops.log"
+
+say "comparing aarch64 with the host"
+"$REPO/.venv/bin/python" "$REPO/tools/pi_check.py" compare "$OUT/host" "$OUT/pi"
