@@ -340,6 +340,20 @@ class PicturesConfig:
 
 
 @dataclass(frozen=True)
+class CoverageConfig:
+    """The searched-area map's transport to rescue-hq (companion/coverage_sender.py)."""
+
+    rate_bytes_s: float = 300.0  # its bytes a second at most on the links (after pictures)
+    period_s: float = 10.0  # the changed cells are gathered and sent this often at most
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_bytes_s) and 50.0 <= self.rate_bytes_s <= 100_000.0):
+            raise ValueError(f"rate_bytes_s = {self.rate_bytes_s}: must be 50..100000")
+        if not (math.isfinite(self.period_s) and 1.0 <= self.period_s <= 3600.0):
+            raise ValueError(f"period_s = {self.period_s}: must be 1..3600")
+
+
+@dataclass(frozen=True)
 class Config:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     hq: HqConfig = field(default_factory=HqConfig)
@@ -352,6 +366,7 @@ class Config:
     paths: PathsConfig = field(default_factory=PathsConfig)
     video: VideoConfig = field(default_factory=VideoConfig)
     pictures: PicturesConfig = field(default_factory=PicturesConfig)
+    coverage: CoverageConfig = field(default_factory=CoverageConfig)
     thermal: ThermalConfig | None = None  # built only when the file has a [thermal] section
 
 

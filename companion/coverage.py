@@ -27,6 +27,7 @@ from __future__ import annotations
 import base64
 import functools
 import math
+import threading
 import zlib
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.camera import CameraModel, rotation_zyx
-from fusion.coverage import CoverageGrid
+from fusion.coverage import CellIndex, CoverageDelta, CoverageGrid
 from fusion.params import GeolocationParams
 from fusion.types import PoseSample, Sensor
 
@@ -225,6 +226,25 @@ def footprint(
         lit = np.clip((luma[bv, bu] - DARK_LUMA) / (LIT_LUMA - DARK_LUMA), 0.0, 1.0)
         p = lit * p + (1.0 - lit) * dark.at(range_m)
     return Footprint(cells, p, range_m)
+
+
+class SharedGrid(CoverageGrid):
+    """The service's grid: the processing thread adds looks, the reporter thread reads
+    deltas for the HQ (companion/coverage_sender.py); a lock keeps a delta from
+    reading an array that a look is growing. Everything else stays on the processing
+    thread."""
+
+    def __init__(self, cell_m: float = 0.25, max_side_cells: int = 1600) -> None:
+        super().__init__(cell_m, max_side_cells)
+        self._lock = threading.Lock()
+
+    def add_look(self, cells: CellIndex, p: NDArray[np.float64]) -> int:
+        with self._lock:
+            return super().add_look(cells, p)
+
+    def delta_since(self, version: int) -> CoverageDelta:
+        with self._lock:
+            return super().delta_since(version)
 
 
 @dataclass

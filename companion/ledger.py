@@ -25,10 +25,11 @@ from types import ModuleType
 from typing import Any
 
 from companion.announcements import Announcer
+from companion.coverage import SharedGrid
 from companion.pictures import Candidate, PictureChooser, PictureSender
 from companion.reporting import Decision, ReportPolicy
 from companion.store import Store, StoredPicture, StoreError
-from fusion.coverage import CoverageError, CoverageGrid
+from fusion.coverage import CoverageError
 from fusion.tracker import VictimTracker
 from mavlink_io import convert
 from mavlink_io.reliable import Outbox
@@ -223,20 +224,21 @@ def _applied_actions(store: Store) -> dict[int, int]:
     return out
 
 
-def load_coverage(store: Store) -> CoverageGrid:
+def load_coverage(store: Store) -> SharedGrid:
     """The coverage grid as saved (companion/coverage.py adds to it), or an empty one;
     a saved grid that cannot be used (a damaged or hand-edited file) is said in one
     line and the mission's map starts again empty: the victims are kept regardless."""
     try:
         saved: Any = store.get(COVERAGE_KEY)
         if saved is None:
-            return CoverageGrid()
-        grid = CoverageGrid.restore(saved)
+            return SharedGrid()
+        grid = SharedGrid.restore(saved)
     except (CoverageError, StoreError) as exc:
         log.warning(
             "%s: saved %s unusable, the map starts empty: %s", store.path, COVERAGE_KEY, exc
         )
-        return CoverageGrid()
+        return SharedGrid()
+    assert isinstance(grid, SharedGrid)
     log.info(
         "coverage restored: %d looks, %.0f m2 looked at",
         grid.looks,

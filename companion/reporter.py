@@ -4,7 +4,9 @@ Each round it applies the acknowledgements the link threads queued (a SQLite wri
 reports acknowledged, pictures delivered; the link reader threads never wait for
 the database), sends what the outbox has due (first sends and resends with
 backoff), then, only when no report is due, picture chunks within ``[pictures]
-rate_bytes_s``, and the announcements the rate limit lets through as STATUSTEXT.
+rate_bytes_s``, then, when no picture chunk could go either, the searched-area
+map's pieces within ``[coverage] rate_bytes_s`` (companion/coverage_sender.py), and
+the announcements the rate limit lets through as STATUSTEXT.
 It notices the vehicle link's loss and return (both announced; on its return
 every pending report is resent at once), and every ``status_period_s`` sends RESCUE_STATUS, checks the
 HQ link and the disk (companion/status.py) and sends the camera component's
@@ -23,6 +25,7 @@ import time
 from types import ModuleType
 
 from companion.announcements import Announcer
+from companion.coverage_sender import CoverageSender
 from companion.links import Links
 from companion.livevideo import LiveVideo
 from companion.pictures import PictureSender
@@ -46,6 +49,7 @@ class Reporter:
         acks: queue.Queue[MavMessage],
         outbox: Outbox,
         picture_sender: PictureSender,
+        coverage_sender: CoverageSender,
         announcer: Announcer,
         status: Status,
         video: LiveVideo,
@@ -59,6 +63,7 @@ class Reporter:
         self._acks = acks
         self._outbox = outbox
         self._picture_sender = picture_sender
+        self._coverage_sender = coverage_sender
         self._announcer = announcer
         self._status = status
         self._video = video
@@ -81,6 +86,8 @@ class Reporter:
             self._outbox.poll()
             if self._outbox.seconds_until_due() != 0.0:  # reports first, always
                 self._picture_sender.poll()
+                if self._picture_sender.seconds_until_due() != 0.0:  # then pictures
+                    self._coverage_sender.poll()
             now = time.monotonic()
             for a in self._announcer.take(now):
                 for msg in statustext.statustext_msgs(a.text, a.severity, self.chunk_ids, self._m):
@@ -108,6 +115,7 @@ class Reporter:
                 next_status - now,
                 self._outbox.seconds_until_due(),
                 self._picture_sender.seconds_until_due(),
+                self._coverage_sender.seconds_until_due(),
                 self._announcer.seconds_until_due(now),
             ]
             wait = min(w for w in waits if w is not None)
@@ -126,5 +134,7 @@ class Reporter:
                     self._picture_sender.on_ack(picture.Ack.from_msg(ack))
                 except picture.BadChunk as exc:
                     log.warning("picture acknowledgement refused: %s", exc)
+            elif ack.acked_msgid == dialect.RESCUE_COVERAGE_ID:
+                self._coverage_sender.on_ack(int(ack.seq), int(ack.result))
             elif self._outbox.on_ack(ack):
                 log.debug("report %d acknowledged", ack.seq)

@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from companion import coverage_sender as coverage_transport
 from companion import pictures
 from companion.announcements import Announcer
 from companion.calibration import camera_model
@@ -56,6 +57,7 @@ from companion.state import load_state
 from companion.status import Status
 from companion.vision import make_detector
 from companion.vision.thermal import ThermalDetector
+from mavlink_io import coverage as mavcoverage
 from mavlink_io import dialect
 from mavlink_io.codec import MavMessage
 from mavlink_io.params import PARAM_MESSAGE_TYPES, ParamServer
@@ -192,6 +194,13 @@ class Service:
             wake_reporter=self.wake_reporter,
             m=m,
         )
+        coverage_sender = coverage_transport.resume(
+            self.ledger.coverage,
+            config.coverage,
+            self.store,
+            lambda seq, piece: self.links.send_dialect(mavcoverage.piece_msg(m, seq, piece)),
+            signed=self.signing is not None,
+        )
         ground = Ground(
             actions=self.actions,
             requests=self.ground_requests,
@@ -240,6 +249,7 @@ class Service:
             acks=self.acks,
             outbox=self.outbox,
             picture_sender=picture_sender,
+            coverage_sender=coverage_sender,
             announcer=self.announcer,
             status=status,
             video=self.video,

@@ -8,7 +8,7 @@ next timer (HEARTBEAT at 1 Hz, action resends, the table at <= 2 Hz, exports).
 datagrams (a decoder per source, hq.sources), checks signatures, unwraps TUNNELs
 and hands each message to the part that owns it: victim reports to hq.intake
 (stored, then acknowledged), operator actions' answers to hq.actions, pictures to
-hq.pictures; a robot's status and EKF origin it stores itself. What is shown and
+hq.pictures, the searched-area maps to hq.coverage; a robot's status and EKF origin it stores itself. What is shown and
 published (event lines, the table, exports, SBS) is hq.output; replies travel the
 way their message came (hq.sending).
 """
@@ -27,6 +27,7 @@ from typing import Any, TextIO
 from hq import table, wire
 from hq.actions import ActionSender
 from hq.counters import Counters
+from hq.coverage import CoverageIntake
 from hq.intake import STORE_RETRY_S, Received, ReportIntake
 from hq.output import Output
 from hq.pictures import PictureIntake
@@ -40,6 +41,7 @@ from hq.web.state import LiveRobots
 from mavlink_io import picture
 from mavlink_io.codec import Codec
 from mavlink_io.dialect import (
+    RESCUE_COVERAGE_ID,
     RESCUE_MESSAGE_IDS,
     RESCUE_PICTURE_CHUNK_ID,
     RESCUE_VICTIM_REPORT_ID,
@@ -116,6 +118,7 @@ class HqApp:
             registry, self._sender, options.sysid, self.counters, event, changed
         )
         self.pictures = PictureIntake(registry, self._refusals, event)
+        self.coverage = CoverageIntake(registry, self._refusals)
 
     # -- lifecycle -------------------------------------------------------------
 
@@ -249,6 +252,8 @@ class HqApp:
             self.reports.on_report(msg, route, reports)
         elif msg_id == RESCUE_PICTURE_CHUNK_ID:
             self._on_picture_chunk(msg, route)
+        elif msg_id == RESCUE_COVERAGE_ID:
+            self._on_coverage(msg, route)
         elif msg_id == self._m.MAVLINK_MSG_ID_RESCUE_STATUS:
             self._on_status(msg)
         elif msg_id == self._m.MAVLINK_MSG_ID_RESCUE_ACK:
@@ -267,6 +272,18 @@ class HqApp:
             self._sender.send(ack, route)
 
         if self.pictures.on_chunk(msg, answer):
+            self.output.changed()
+
+    def _on_coverage(self, msg: Any, route: Route) -> None:
+        def answer(seq: int, result: int) -> None:
+            ack = self._m.MAVLink_rescue_ack_message(
+                msg.get_srcSystem(), msg.get_srcComponent(), RESCUE_COVERAGE_ID, seq, result
+            )
+            self._sender.send(ack, route)
+
+        m = self._m
+        accepted, rejected = m.RESCUE_ACK_RESULT_ACCEPTED, m.RESCUE_ACK_RESULT_REJECTED
+        if self.coverage.on_piece(msg, answer, accepted, rejected):
             self.output.changed()
 
     def _on_status(self, msg: Any) -> None:

@@ -378,6 +378,25 @@ class Registry:
         """The stored JPEG, None without one or when the row is unusable (said once)."""
         return registry_rows.picture(self._db, self._bad_row, robot_sysid, victim_id, kind)
 
+    # -- searched-area maps (per robot: the largest p_q of each cell it sent) ------------
+
+    def store_coverage(self, robot_sysid: int, cells: Sequence[tuple[int, int, int]]) -> None:
+        """Keep a robot's cells (north index, east index, p_q): each at the larger of
+        what is stored and what it says, so a late or repeated piece never lowers
+        one. RegistryError as for reports."""
+        with transaction(self._db, self.path) as db:
+            db.executemany(
+                "INSERT INTO coverage (robot_sysid, north_idx, east_idx, p_q) VALUES (?, ?, ?, ?)"
+                " ON CONFLICT (robot_sysid, north_idx, east_idx) DO UPDATE SET p_q = excluded.p_q"
+                " WHERE excluded.p_q > coverage.p_q OR typeof(coverage.p_q) != 'integer'",
+                [(robot_sysid, n, e, q) for n, e, q in cells],
+            )
+
+    def coverage(self) -> dict[int, list[tuple[int, int, int]]]:
+        """Every robot's usable cells (north index, east index, p_q); a damaged row
+        is skipped and said once."""
+        return registry_rows.coverage(self._db, self._bad_row)
+
     def data_version(self) -> int:
         """Changes whenever another connection commits (cheap; see PRAGMA data_version)."""
         return int(self._db.execute("PRAGMA data_version").fetchone()[0])

@@ -11,6 +11,8 @@ Tables:
                 ``colour`` or ``thermal`` (the camera that took it; fusion.types.Sensor)
     operator_notes  the operator's notes on HQ victims (hq.web.notes); moved with the
                 person when the robot merges that victim into another (hq.registry)
+    coverage    each robot's searched-area map (hq.coverage): per 0.25 m floor cell of
+                the robot's local frame, the largest p_q (probability x 255) it sent
 
 ``open_db`` opens (WAL, synchronous=FULL), checks, creates or migrates the file
 and starts a new registry in a new ID epoch (hq.epoch). ``transaction`` is one
@@ -35,13 +37,18 @@ from hq.errors import HqError
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 4  # 2: actions.ack_result; 3: pictures; 4: pictures.kind
+SCHEMA_VERSION = 5  # 2: actions.ack_result; 3: pictures; 4: pictures.kind; 5: coverage
 _PICTURES = """CREATE TABLE IF NOT EXISTS pictures (
     robot_sysid INTEGER NOT NULL, victim_id INTEGER NOT NULL,
     kind TEXT NOT NULL DEFAULT 'colour',
     picture_id INTEGER NOT NULL, received_unix_s REAL NOT NULL, jpeg BLOB NOT NULL,
     PRIMARY KEY (robot_sysid, victim_id, kind)
 )"""
+COVERAGE_SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS coverage ("
+    " robot_sysid INTEGER NOT NULL, north_idx INTEGER NOT NULL, east_idx INTEGER NOT NULL,"
+    " p_q INTEGER NOT NULL, PRIMARY KEY (robot_sysid, north_idx, east_idx)) WITHOUT ROWID"
+)
 # From version: SQL. The pictures table of version 3 is created by _SCHEMA itself;
 # version 4 makes it again keyed by kind too: the pictures it held are colour ones.
 _MIGRATIONS: dict[int, tuple[str, ...]] = {
@@ -55,6 +62,7 @@ _MIGRATIONS: dict[int, tuple[str, ...]] = {
         " FROM pictures_v3",
         "DROP TABLE pictures_v3",
     ),
+    4: (),  # the coverage table is created by COVERAGE_SCHEMA itself
 }
 
 _SCHEMA = """
@@ -159,6 +167,7 @@ def _setup(db: sqlite3.Connection, path: Path) -> int:
                 db.execute(statement)
         db.execute(_PICTURES)
         db.execute(NOTES_SCHEMA)
+        db.execute(COVERAGE_SCHEMA)
         row = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
         version = None if row is None else _meta_int(row[0], "schema_version", path)
         if version is None:

@@ -209,3 +209,26 @@ def first_received_unix_s(db: sqlite3.Connection, bad_row: BadRow) -> dict[tuple
         except BadRecord as exc:
             bad_row(f"reports robot {r} victim {v}", exc)
     return out
+
+
+_COVERAGE_OK = (
+    "typeof(robot_sysid) = 'integer' AND typeof(north_idx) = 'integer'"
+    " AND typeof(east_idx) = 'integer' AND typeof(p_q) = 'integer'"
+    " AND p_q BETWEEN 1 AND 255 AND north_idx BETWEEN -32768 AND 32767"
+    " AND east_idx BETWEEN -32768 AND 32767"
+)
+
+
+def coverage(db: sqlite3.Connection, bad_row: BadRow) -> dict[int, list[tuple[int, int, int]]]:
+    """Each robot's usable searched-area cells (north index, east index, p_q); the
+    damaged rows of a robot are said once (checked in SQL: a map has many cells)."""
+    out: dict[int, list[tuple[int, int, int]]] = {}
+    for r, n, e, q in db.execute(
+        f"SELECT robot_sysid, north_idx, east_idx, p_q FROM coverage WHERE {_COVERAGE_OK}"
+    ):
+        out.setdefault(r, []).append((n, e, q))
+    for r, count in db.execute(
+        f"SELECT robot_sysid, COUNT(*) FROM coverage WHERE NOT ({_COVERAGE_OK}) GROUP BY 1"
+    ):
+        bad_row(f"coverage of robot {str(r)[:20]}", BadRecord(f"{count} cell(s) unusable"))
+    return out

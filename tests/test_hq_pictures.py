@@ -19,6 +19,7 @@ from hqproc import HqProcess, ack_for, hq_starter
 from fusion.types import Sensor
 from hq.pictures import PictureAssembler
 from hq.registry import Registry
+from hq.registry_file import SCHEMA_VERSION
 from hq.simrobot import SimRobot
 from mavlink_io import picture
 
@@ -158,7 +159,8 @@ def test_a_version_2_registry_gains_the_pictures_table(tmp_path: Path) -> None:
         assert not reg.store_picture(1, 2, 3, _jpeg(100), 0.0)  # this very one
         assert reg.picture(1, 2) == _jpeg(100)
     db = sqlite3.connect(path, isolation_level=None)
-    assert db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "4"
+    version = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0]
+    assert version == str(SCHEMA_VERSION)
     db.execute("UPDATE pictures SET jpeg = x'00'")  # damaged on disk
     db.close()
     with Registry(path) as reg:
@@ -195,7 +197,8 @@ def test_a_version_3_registry_keeps_its_pictures_as_colour_ones(tmp_path: Path) 
         }  # fmt: skip
         assert reg.picture(1, 5) is None and "victim 5" in " ".join(reg.bad_rows)
     db = sqlite3.connect(path, isolation_level=None)
-    assert db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == "4"
+    version = db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0]
+    assert version == str(SCHEMA_VERSION)
     db.execute("UPDATE pictures SET kind='infrared' WHERE kind='thermal'")  # edited by hand
     db.close()
     with Registry(path) as reg:
