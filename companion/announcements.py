@@ -161,6 +161,16 @@ class Announcer:
         self._wake = wake
         self.waiting = Announcements()
         self.conditions = Conditions()
+        self._hq_numbers: dict[int, int] = {}  # robot's victim ID -> the HQ's number
+        self._numbers_lock = threading.Lock()
+
+    def hq_number(self, victim_id: int, hq_id: int) -> None:
+        """The HQ's number for this robot's victim (its acknowledgement said it): the
+        lines about that victim use it from now on (``CRIT07``, as QGC's map label)."""
+        with self._numbers_lock:
+            if self._hq_numbers.get(victim_id) != hq_id:
+                log.info("victim %d is the HQ's %d", victim_id, hq_id)
+            self._hq_numbers[victim_id] = hq_id
 
     def announce(self, text: str, severity: int) -> None:
         """A status line for people, naming this robot (QGC shows it; NOTICE and
@@ -170,7 +180,9 @@ class Announcer:
     def victim(self, d: Decision, report: VictimReport) -> None:
         """A victim's line, when its decision says people hear of it."""
         if d.announce:
-            text = statustext.victim_text(report)
+            with self._numbers_lock:
+                hq_id = self._hq_numbers.get(report.victim_id)
+            text = statustext.victim_text(report, hq_id)
             severity = statustext.victim_severity(report, d.spoken, self.announce_severity)
             self._put(text, severity)
 

@@ -136,5 +136,7 @@ class Reporter:
                     log.warning("picture acknowledgement refused: %s", exc)
             elif ack.acked_msgid == dialect.RESCUE_COVERAGE_ID:
                 self._coverage_sender.on_ack(int(ack.seq), int(ack.result))
-            elif self._outbox.on_ack(ack):
+            elif (acked := self._outbox.acknowledged(ack)) is not None:
                 log.debug("report %d acknowledged", ack.seq)
+                if acked.get_msgId() == dialect.RESCUE_VICTIM_REPORT_ID and ack.hq_victim_id:
+                    self._announcer.hq_number(int(acked.victim_id), int(ack.hq_victim_id))

@@ -3,7 +3,8 @@
 Order of work for victim reports, which is what makes "acknowledged" mean
 "stored": the main loop decodes a burst of datagrams, ``store_and_ack`` stores all
 their reports in one SQLite transaction (synchronous=FULL), and only after the
-commit returned sends the RESCUE_ACKs: ACCEPTED for what is kept and shown,
+commit returned sends the RESCUE_ACKs (each naming the HQ's number for the person,
+``hq_victim_id``): ACCEPTED for what is kept and shown,
 DUPLICATE for what was stored before, REJECTED for a report that does not validate
 or is older than the one held for that robot's victim (kept in the log, not shown). A locked or failing database (a full disk)
 means no acknowledgement: the reports are held in memory and written again every
@@ -133,7 +134,8 @@ class ReportIntake:
             self._store_failing_since = None
             self._changed()
         for (item, msg, route), result in zip(reports, results, strict=True):
-            self._send_ack(msg, route, _ACK_RESULTS[result])
+            hq_id = self.registry.hq_id_of(item.report.robot_sysid, item.report.victim_id)
+            self._send_ack(msg, route, _ACK_RESULTS[result], hq_id or 0)
             if result is StoreResult.DUPLICATE:
                 self.counters.duplicates += 1
                 continue
@@ -171,13 +173,16 @@ class ReportIntake:
             return None
         return f"CANNOT STORE: {len(self._unstored)} report(s) held in memory, not acknowledged"
 
-    def _send_ack(self, msg: Any, route: Route, result: int) -> None:
+    def _send_ack(self, msg: Any, route: Route, result: int, hq_id: int = 0) -> None:
+        """``hq_id``: the HQ's number for the person (0: none), which the robot's
+        announcements then use (docs/HQ.md "One number per victim")."""
         ack = self._m.MAVLink_rescue_ack_message(
             msg.get_srcSystem(),
             msg.get_srcComponent(),
             RESCUE_VICTIM_REPORT_ID,
             int(msg.report_seq),
             result,
+            hq_id & 0xFFFFFFFF,
         )
         self._sender.send(ack, route)
         self.counters.acks_sent += 1

@@ -378,6 +378,19 @@ class Registry:
         """The stored JPEG, None without one or when the row is unusable (said once)."""
         return registry_rows.picture(self._db, self._bad_row, robot_sysid, victim_id, kind)
 
+    def hq_id_of(self, robot_sysid: int, victim_id: int) -> int | None:
+        """The HQ victim a robot's victim is in (None: not stored, or unusable)."""
+        row = self._db.execute(
+            "SELECT hq_id FROM sources WHERE robot_sysid=? AND victim_id=?",
+            (robot_sysid, victim_id),
+        ).fetchone()
+        if row is None:
+            return None
+        try:
+            return registry_rows.cell_int(row[0])
+        except BadRecord:
+            return None
+
     # -- searched-area maps (per robot: the largest p_q of each cell it sent) ------------
 
     def store_coverage(self, robot_sysid: int, cells: Sequence[tuple[int, int, int]]) -> None:

@@ -55,18 +55,20 @@ from datetime import UTC, datetime
 
 from fusion.types import TrackState, Urgency
 from hq.view import HqVictim
+from mavlink_io.statustext import RETIRED_LABEL, URGENCY_LABEL, callsign
+
+__all__ = ["callsign"]  # re-exported: the label the robots' announcements use too
 
 log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 30003  # dump1090's SBS-1 port, and QGC's default ADSB server port
 DEFAULT_ADDRESS = ("127.0.0.1", DEFAULT_PORT)
 REFRESH_S = 1.0
-CALLSIGN_MAX = 8  # an ADS-B callsign holds 8 characters
 _ICAO_BASE = 0xF00000  # our tracks' 24-bit addresses: 0xF00000 + HQ ID
 _FEET_PER_M = 1.0 / 0.3048
 _LIVE_STATES = (TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
-_RETIRED_LABEL = {TrackState.RESCUED: "RESC", TrackState.FALSE_ALARM: "FALSE"}
-_URGENCY_LABEL = {Urgency.CRITICAL: "CRIT", Urgency.MEDIUM: "MED", Urgency.LIGHT: "LIGHT"}
+_RETIRED_LABEL = RETIRED_LABEL
+_URGENCY_LABEL = URGENCY_LABEL
 MAX_CLIENT_BUFFER_BYTES = 16 * 1024 * 1024  # ~80 refreshes of 1000 tracks: a client not reading
 _SEND_CHUNK_BYTES = 256 * 1024  # at most this much per send() call
 _RESTART_DELAY_S = 1.0  # after a failure of the thread, serve again this much later
@@ -82,13 +84,6 @@ class SbsTrack:
     lon_deg: float
     alt_ft: int
     emergency: bool
-
-
-def callsign(label: str, hq_id: int) -> str:
-    """``label`` + ID (two digits at least) within 8 characters (``CRIT07``); the
-    label's first letter when the ID is too long for the whole word (``C123456``)."""
-    text = f"{label}{hq_id:02d}"
-    return text if len(text) <= CALLSIGN_MAX else f"{label[0]}{hq_id}"[:CALLSIGN_MAX]
 
 
 def _track(v: HqVictim, label: str, emergency: bool) -> SbsTrack:

@@ -274,6 +274,10 @@ class Outbox:
     def on_ack(self, ack: MavMessage) -> bool:
         """Handle a RESCUE_ACK; True if it acknowledged a pending message. It writes
         the store: call it from the one thread that owns the outbox, not a reader."""
+        return self.acknowledged(ack) is not None
+
+    def acknowledged(self, ack: MavMessage) -> MavMessage | None:
+        """``on_ack``, returning the message it acknowledged (None: nothing pending)."""
         key = (int(ack.acked_msgid), int(ack.seq))
         with self._lock:
             item = self._schedule.pop(key, None)
@@ -284,9 +288,10 @@ class Outbox:
                     del self._subjects[subject]
             else:
                 self.counters.unmatched_acks += 1
-        if item is not None:
-            self._store.ack(*key)
-        return item is not None
+        if item is None:
+            return None
+        self._store.ack(*key)
+        return item.msg
 
     def poll(self) -> int:
         """Send every message that is due (first sends and resends); how many."""

@@ -75,16 +75,40 @@ def warm_only(cues: Cue) -> bool:
     return bool(cues & Cue.WARM) and not cues & (Cue.COLOUR_BODY | Cue.COLOUR_PART)
 
 
-def victim_text(report: VictimReport) -> str:
-    """``R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start``; a state other than
-    confirmed is said instead of the urgency (``R2 victim 7 RESCUED, ...``); a victim
-    seen warm only says so, shortened to fit one chunk when it can."""
+CALLSIGN_MAX = 8  # an ADS-B callsign holds 8 characters
+URGENCY_LABEL = {Urgency.CRITICAL: "CRIT", Urgency.MEDIUM: "MED", Urgency.LIGHT: "LIGHT"}
+RETIRED_LABEL = {TrackState.RESCUED: "RESC", TrackState.FALSE_ALARM: "FALSE"}
+
+
+def callsign(label: str, hq_id: int) -> str:
+    """The HQ's name for its victim ``hq_id`` (QGC's map label, the console card, the
+    CLI): ``label`` + ID (two digits at least) within 8 characters (``CRIT07``); the
+    label's first letter when the ID is too long for the whole word (``C123456``)."""
+    text = f"{label}{hq_id:02d}"
+    return text if len(text) <= CALLSIGN_MAX else f"{label[0]}{hq_id}"[:CALLSIGN_MAX]
+
+
+def victim_name(report: VictimReport, hq_id: int | None) -> str:
+    """How a line names a victim: the HQ's label (``CRIT07``: its urgency, or RESC /
+    FALSE, and the HQ's number) once the HQ has said its number, else the robot's own
+    number (``7``)."""
+    if hq_id is None:
+        return str(report.victim_id)
+    return callsign(RETIRED_LABEL.get(report.state, URGENCY_LABEL[report.urgency]), hq_id)
+
+
+def victim_text(report: VictimReport, hq_id: int | None = None) -> str:
+    """``R2 CRITICAL victim 7, 12.3 m N 4.5 m E of start`` (``victim CRIT07`` once the
+    HQ said its number, ``hq_id``); a state other than confirmed is said instead of the
+    urgency (``R2 victim 7 RESCUED, ...``); a victim seen warm only says so, shortened
+    to fit one chunk when it can."""
     robot = robot_label(report.robot_sysid)
     where = where_text(report.north_m, report.east_m)
     state = _STATE_WORDS.get(report.state)
+    name = victim_name(report, hq_id)
     if state is not None:
-        return f"{robot} victim {report.victim_id} {state}, {where}"
-    head = f"{robot} {report.urgency.name} victim {report.victim_id}"
+        return f"{robot} victim {name} {state}, {where}"
+    head = f"{robot} {report.urgency.name} victim {name}"
     if not warm_only(report.cues):
         return f"{head}, {where}"
     shorter = where.removesuffix(" of start")

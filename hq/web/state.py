@@ -26,6 +26,7 @@ from typing import Any
 from fusion.types import Sensor, TrackState
 from hq.records import ACK_RESULT_REJECTED, Action, Robot, RobotStatus, cue_words
 from hq.view import HqVictim
+from mavlink_io.statustext import RETIRED_LABEL, URGENCY_LABEL, callsign
 
 CHI2_2DOF_95 = 5.991  # scipy.stats.chi2.ppf(0.95, df=2): the ellipse's scale
 _RESOLVED = (TrackState.RESCUED, TrackState.FALSE_ALARM)
@@ -184,6 +185,9 @@ def _victim(
 ) -> dict[str, Any]:
     return {
         "id": v.hq_id,
+        # The HQ's name for the person: QGC's map label, and what the robots say once
+        # they know the HQ's number (mavlink_io.statustext.victim_name).
+        "label": callsign(RETIRED_LABEL.get(v.state, URGENCY_LABEL[v.urgency]), v.hq_id),
         "urgency": v.urgency.name,
         "urgency_rank": int(v.urgency),
         "state": v.state.name,

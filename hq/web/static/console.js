@@ -65,7 +65,7 @@ function victimColour(v) {
 }
 
 function label(v) {
-  return v.state === "RESCUED" ? `V${v.id} ✓` : v.state === "FALSE_ALARM" ? `V${v.id} ✗` : `V${v.id}`;
+  return v.state === "RESCUED" ? `${v.label} ✓` : v.state === "FALSE_ALARM" ? `${v.label} ✗` : v.label;
 }
 
 // -- the map -------------------------------------------------------------------------
@@ -164,7 +164,7 @@ const SEEN_TITLE = "What saw this person, on any robot: colour body (the colour 
 function popupHtml(v) {
   const where = v.lat_deg == null ? "lat/lon unknown (no EKF origin)" : `${v.lat_deg.toFixed(6)}, ${v.lon_deg.toFixed(6)}`;
   const box = el("div", { class: "popup" },
-    el("b", {}, `V${v.id} ${v.urgency} · ${STATE_LABEL[v.state] || v.state}`), el("br"),
+    el("b", {}, `${v.label} ${v.urgency} · ${STATE_LABEL[v.state] || v.state}`), el("br"),
     `N ${signed(v.north_m)} m, E ${signed(v.east_m)} m, ±${v.sigma_m.toFixed(1)} m`, el("br"),
     where, el("br"),
     `robot ${v.robots.join(", ")} · ${v.visibility_pct.toFixed(0)} % visible`, el("br"),
@@ -348,7 +348,7 @@ function fillCard(card, v) {
     pic.dataset.src = "none";
   }
   card.querySelector(".title").replaceChildren(
-    el("span", { class: "vid" }, `V${v.id}`),
+    el("span", { class: "vid", title: `the HQ's victim ${v.id}: QGC's map label, and what the robots say once the HQ has answered` }, v.label),
     el("span", { class: `badge u-${v.urgency}` }, v.urgency),
     el("span", { class: `state s-${v.state}` }, STATE_LABEL[v.state] || v.state),
   );
