@@ -28,7 +28,7 @@ from types import FrameType
 from typing import TYPE_CHECKING
 
 from fusion.types import GlobalOrigin
-from hq import epoch, export, table
+from hq import coverage, epoch, export, table
 from hq.app import HqApp, HqOptions
 from hq.errors import HqError
 from hq.merge import Origins
@@ -134,7 +134,11 @@ def _run_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--db", type=Path, default=Path(DEFAULT_DB), help="SQLite registry file")
     p.add_argument("--sysid", type=_sysid, default=245, help="the HQ's MAVLink system ID")
-    p.add_argument("--export-dir", type=Path, help="write victims.geojson/.kml/.csv here")
+    p.add_argument(
+        "--export-dir",
+        type=Path,
+        help="write victims.geojson/.kml/.csv and coverage.geojson (the searched-area map) here",
+    )
     p.add_argument("--signing-key", type=Path, help="MAVLink 2 signing key file (mode 0600)")
     p.add_argument(
         "--origin",
@@ -449,8 +453,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
         if args.origin is not None:  # place NED-only victims of robots without an origin
             origins = Origins(origins.per_robot, args.origin)
         victims = build(registry.sources(), registry.actions(), origins)
+        grid = coverage.merged_map(registry.coverage(), origins)
     try:
-        result = export.export_all(victims, args.out)
+        result = export.export_all(victims, args.out, grid)
     except OSError as exc:
         print(f"rescue-hq: cannot write exports to {args.out}: {exc}", file=sys.stderr)
         return EXIT_RUNTIME

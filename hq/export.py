@@ -8,6 +8,11 @@
   Earth, and any GIS or phone map app a ground team uses).
 - ``victims.csv``: one row per victim for a ground team's list or a spreadsheet
   (RFC 4180, a header row, UTF-8).
+- ``coverage.geojson``: where the robots have looked (hq.coverage): each 0.25 m
+  floor cell any robot looked at, a Polygon with p (the merged probability that a
+  person there would have been found) and its class (searched well, glanced at,
+  looked at); in lon/lat when the robots have a global origin, else in local NED
+  metres, which its properties say (``coordinates``, ``crs_note``).
 
 There is deliberately no QGroundControl ``.plan``: uploading a plan to a vehicle
 replaces its mission, geofence and rally points, and rally points are where RTL
@@ -38,12 +43,14 @@ from pathlib import Path
 from typing import Any
 
 from fusion.types import Urgency
+from hq.coverage import MergedMap
 from hq.records import cue_words
 from hq.view import HqVictim
 
 GEOJSON_NAME = "victims.geojson"
 KML_NAME = "victims.kml"
 CSV_NAME = "victims.csv"
+COVERAGE_NAME = "coverage.geojson"
 CSV_COLUMNS = (
     "id",
     "urgency",
@@ -179,6 +186,11 @@ def csv_text(victims: list[HqVictim]) -> bytes:
     return out.getvalue().encode("utf-8")
 
 
+def coverage_geojson(coverage: MergedMap) -> bytes:
+    """The merged searched-area map as GeoJSON (compact: a map has many cells)."""
+    return json.dumps(coverage.geojson(), separators=(",", ":")).encode()
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` so that readers see the old or the new file, never half."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -193,14 +205,19 @@ def write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def export_all(victims: list[HqVictim], out_dir: Path) -> ExportResult:
-    """Write the three files into ``out_dir`` (created if missing); OSError on failure."""
+def export_all(
+    victims: list[HqVictim], out_dir: Path, coverage: MergedMap | None = None
+) -> ExportResult:
+    """Write the victims' three files into ``out_dir`` (created if missing), and the
+    searched-area map when given; OSError on failure."""
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {
         GEOJSON_NAME: json.dumps(geojson(victims), indent=1).encode(),
         KML_NAME: kml(victims),
         CSV_NAME: csv_text(victims),
     }
+    if coverage is not None:
+        files[COVERAGE_NAME] = coverage_geojson(coverage)
     for name, data in files.items():
         write_atomic(out_dir / name, data)
     placed = sum(1 for v in victims if v.has_global)

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from hq import export, table
+from hq import coverage, export, table
 from hq.counters import Counters
 from hq.registry import Registry
 from hq.registry_file import RegistryError
@@ -36,6 +36,7 @@ from hq.view import hq_victims
 log = logging.getLogger(__name__)
 
 _REDRAW_MIN_PERIOD_S = 0.5  # the table and the exports: at most 2 Hz
+COVERAGE_EXPORT_PERIOD_S = 10.0  # coverage.geojson (large) at most this often, and at the stop
 _AGE_REFRESH_S = 1.0  # redraw the live table this often even without news (ages tick)
 MAX_WAITING_LINES = 1000  # event or log lines waiting for a terminal that does not read
 _CLOSE_WAIT_S = 1.0  # at the stop, how long the last lines may take to be written
@@ -189,6 +190,7 @@ class Output:
         self._header = header  # the table's header, given the number of reports stored
         self.live_table = live_table
         self.export_dir = export_dir
+        self._next_coverage_export_s = 0.0
         self.sbs = sbs  # the victims as ADS-B traffic for QGC (hq/sbs.py)
         self._dirty = True
         self._last_draw_mono_s = 0.0
@@ -217,7 +219,7 @@ class Output:
             log.warning("cannot read the registry: %s", exc)
             return
         if dirty and self.export_dir is not None:
-            self._export(victims, self.export_dir)
+            self._export(victims, self.export_dir, force=force)
         if dirty and self.sbs is not None:
             self.sbs.publish(victims)
         if self.live_table:
@@ -228,9 +230,17 @@ class Output:
         """Write what waits for the terminal (briefly: it may not read); safe twice."""
         self._writer.close()
 
-    def _export(self, victims: list[Any], export_dir: Path) -> None:
+    def _export(self, victims: list[Any], export_dir: Path, *, force: bool = False) -> None:
+        now = time.monotonic()
+        grid = None  # the searched-area map: rewritten at most every COVERAGE_EXPORT_PERIOD_S
+        if force or now >= self._next_coverage_export_s:
+            self._next_coverage_export_s = now + COVERAGE_EXPORT_PERIOD_S
+            try:
+                grid = coverage.load(self.registry)
+            except RegistryError as exc:
+                log.warning("cannot read the searched-area maps: %s", exc)
         try:
-            export.export_all(victims, export_dir)
+            export.export_all(victims, export_dir, grid)
         except OSError as exc:
             log.error("export to %s failed: %s", export_dir, exc)
             return

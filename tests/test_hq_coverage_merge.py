@@ -3,6 +3,9 @@ one frame, kept in the registry across restarts; its unsearched places and GeoJS
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -73,3 +76,23 @@ def test_geojson_is_lon_lat_with_an_origin_else_says_local_metres() -> None:
     assert (lat, lon) == pytest.approx((want_lat, want_lon), abs=1e-7)
     assert "crs_note" not in geo["properties"]
     assert geo["features"][0]["properties"]["class"] == "glanced at"
+
+
+def test_rescue_hq_export_writes_the_grid(tmp_path: Path) -> None:
+    db = tmp_path / "hq.sqlite"
+    with Registry(db) as reg:
+        reg.store_coverage(1, [(0, 0, 250), (0, 1, 100), (3, 3, 20)])
+    out = tmp_path / "out"
+    for extra, where in (([], "local NED metres"), (["--origin", "47.4,8.5,400"], "WGS-84")):
+        run = subprocess.run(
+            [sys.executable, "-m", "hq.cli", "export", "--db", str(db), "--out", str(out), *extra],
+            capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[1],
+        )  # fmt: skip
+        assert run.returncode == 0, run.stderr
+        assert str(out / "coverage.geojson") in run.stdout
+        doc = json.loads((out / "coverage.geojson").read_text())
+        assert doc["properties"]["coordinates"].startswith(where)
+        classes = sorted(f["properties"]["class"] for f in doc["features"])
+        assert classes == ["glanced at", "looked at", "searched well"]
+    lon, lat = doc["features"][0]["geometry"]["coordinates"][0][0]
+    assert lat == pytest.approx(47.4, abs=1e-4) and lon == pytest.approx(8.5, abs=1e-4)
