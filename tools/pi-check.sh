@@ -31,14 +31,6 @@ OUT_IN_ROOT=/mnt/out
 say() { printf 'pi-check: %s\n' "$*"; }
 die() { printf 'pi-check: error: %s\n' "$*" >&2; exit 2; }
 
-if [ "$(id -u)" -ne 0 ]; then
-    command -v sudo >/dev/null 2>&1 || die "needs root (debootstrap, chroot, binfmt_misc) and there is no sudo"
-    exec sudo --preserve-env=PI_ROOT,PI_MIRROR,PI_CHECK_DATA,PI_CHECK_OUT,PI_CHECK_PRESET,PI_CHECK_MISSION_S \
-        bash "${BASH_SOURCE[0]}" "$@"
-fi
-[ -d "$DATA/frames" ] || die "no real_falls frames at $DATA/frames (set PI_CHECK_DATA)"
-[ -x "$REPO/.venv/bin/rescue-companion" ] || die "no host set-up in $REPO/.venv: run make test or make demo first"
-
 host_packages() {
     local missing=()
     command -v debootstrap >/dev/null 2>&1 || missing+=(debootstrap)
@@ -110,92 +102,115 @@ unmount_all() {
     done
     MOUNTED=()
 }
+# qemu emulates the Pi 5's core (BCM2712: Cortex-A76, Armv8.2 with dot product and
+# fp16, no SVE), not its default "max" CPU, so that the libraries pick the kernels a
+# Pi 5 runs. QEMU_CPU is read by each emulated program, so it stays in the environment.
+PI_CPU=${PI_CPU:-cortex-a76}
 in_root() {  # a command in the arm64 root, at the lowest priority, with a clean environment
-    "${NICE[@]}" chroot "$PI_ROOT" /usr/bin/env -i HOME=/root LANG=C.UTF-8 \
-        PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin "$@"
+    QEMU_CPU=$PI_CPU "${NICE[@]}" chroot "$PI_ROOT" /usr/bin/env -i QEMU_CPU="$PI_CPU" \
+        HOME=/root LANG=C.UTF-8 PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
+        "$@"
 }
 
-host_packages
-binfmt
-unmount_leftovers
-build_root
-
-if [ -n "$(git -C "$REPO" status --porcelain --untracked-files=no)" ]; then
-    say "note: checking HEAD ($(git -C "$REPO" rev-parse --short HEAD)); uncommitted changes are not part of it"
-fi
-rm -rf "$OUT"
-mkdir -p "$OUT/host" "$OUT/pi"
-
-trap unmount_all EXIT
-mount_in_root /proc /proc
-mount_in_root /sys /sys
-mount_in_root /dev /dev
-cp -L /etc/resolv.conf "$PI_ROOT/etc/resolv.conf"
-
-say "copying HEAD into the arm64 root's $SRC_IN_ROOT"
-rm -rf "${PI_ROOT:?}$SRC_IN_ROOT"
-mkdir -p "$PI_ROOT$SRC_IN_ROOT"
-git -C "$REPO" archive HEAD | tar -x -C "$PI_ROOT$SRC_IN_ROOT"
-
-say "the README's set-up in the arm64 root (make .venv/.installed; log: $OUT/pi/setup.log)"
-start=$(date +%s)
-if ! in_root bash -c "cd $SRC_IN_ROOT && make .venv/.installed" >"$OUT/pi/setup.log" 2>&1; then
-    tail -n 30 "$OUT/pi/setup.log" >&2
-    die "the set-up failed in the arm64 root (the whole log: $OUT/pi/setup.log)"
-fi
-setup_s=$(( $(date +%s) - start ))
-say "set-up done in ${setup_s} s (emulated)"
-echo "$setup_s" >"$OUT/pi/setup_seconds"
-
-# The same mission and pictures on both sides: the mission is recorded on the host
-# (simulated time: the same seed gives the same frames), then bind-mounted read-only.
-say "recording a ${MISSION_S} s '$MISSION_PRESET' mission on the host (both cameras)"
-"$REPO/.venv/bin/rescue-sim" record --preset "$MISSION_PRESET" --out "$OUT/mission" \
-    --duration-s "$MISSION_S" --fps 5 --start-unix-s 1767000000 >"$OUT/host/record.log" 2>&1 \
-    || { tail -n 20 "$OUT/host/record.log" >&2; die "rescue-sim record failed"; }
-mount_in_root "$DATA" "$DATA_IN_ROOT" ro
-mount_in_root "$OUT/mission" "$MISSION_IN_ROOT" ro
-mount_in_root "$OUT/pi" "$OUT_IN_ROOT"
-
 # detect and replay with the given data, mission and output folders, on either side
-run_side() {  # LABEL COMPANION DATA MISSION OUT [runner...]
-    local label=$1 companion=$2 data=$3 mission=$4 out=$5
-    shift 5
-    "$@" "$companion" detect --json "$data/frames" >"$OUT/$label/detect.jsonl" \
-        2>"$OUT/$label/detect.log" \
+run_side() {  # LABEL DATA MISSION OUT COMMAND... (the command that is rescue-companion)
+    local label=$1 data=$2 mission=$3 out=$4
+    shift 4
+    "$@" detect --json "$data/frames" >"$OUT/$label/detect.jsonl" 2>"$OUT/$label/detect.log" \
         || { tail -n 20 "$OUT/$label/detect.log" >&2; die "$label: rescue-companion detect failed"; }
-    "$@" "$companion" replay --config "$mission/camera.toml" --tlog "$mission/mission.tlog" \
+    "$@" replay --config "$mission/camera.toml" --tlog "$mission/mission.tlog" \
         --frames "$mission/frames" --thermal-frames "$mission/thermal" --out "$out/replay/" \
         >"$OUT/$label/replay.log" 2>&1 \
         || { tail -n 20 "$OUT/$label/replay.log" >&2; die "$label: rescue-companion replay failed"; }
 }
+# The host runs HEAD too (its copy in $OUT/src, in the host's venv, ahead of the
+# working tree's editable install): uncommitted work on the host is not compared.
+host_python() {
+    env PYTHONPATH="$OUT/src" "${NICE[@]}" "$REPO/.venv/bin/python" "$@"
+}
 
-say "detect and replay on the host"
-start=$(date +%s)
-run_side host "$REPO/.venv/bin/rescue-companion" "$DATA" "$OUT/mission" "$OUT/host" "${NICE[@]}"
-echo $(( $(date +%s) - start )) >"$OUT/host/run_seconds"
+# All in one function: bash reads it whole before running it, so editing this file
+# during a run cannot change the run.
+main() {
+    if [ "$(id -u)" -ne 0 ]; then
+        command -v sudo >/dev/null 2>&1 || die "needs root (debootstrap, chroot, binfmt_misc) and there is no sudo"
+        exec sudo --preserve-env=PI_ROOT,PI_MIRROR,PI_CHECK_DATA,PI_CHECK_OUT,PI_CHECK_PRESET,PI_CHECK_MISSION_S,PI_CPU \
+            bash "${BASH_SOURCE[0]}" "$@"
+    fi
+    [ -d "$DATA/frames" ] || die "no real_falls frames at $DATA/frames (set PI_CHECK_DATA)"
+    [ -x "$REPO/.venv/bin/rescue-companion" ] || die "no host set-up in $REPO/.venv: run make test or make demo first"
 
-say "detect and replay on aarch64 (emulated)"
-start=$(date +%s)
-run_side pi "$SRC_IN_ROOT/.venv/bin/rescue-companion" "$DATA_IN_ROOT" "$MISSION_IN_ROOT" \
-    "$OUT_IN_ROOT" in_root
-echo $(( $(date +%s) - start )) >"$OUT/pi/run_seconds"
-in_root "$SRC_IN_ROOT/.venv/bin/python" -c \
-    'import platform, sys; print(platform.machine(), platform.python_version())' \
-    >"$OUT/pi/platform"
-in_root "$SRC_IN_ROOT/.venv/bin/pip" freeze --exclude-editable >"$OUT/pi/pip-freeze.txt"
-say "aarch64 side: $(cat "$OUT/pi/platform"), set-up ${setup_s} s, detect + replay $(cat "$OUT/pi/run_seconds") s (emulated: no Pi figure)"
+    host_packages
+    binfmt
+    unmount_leftovers
+    build_root
 
-# What a Pi 5 must compute, counted on the host (the same models, the same frames).
-say "model runs a frame and multiply-accumulates a run"
-frames=$(find "$DATA/frames" -maxdepth 1 -type f | wc -l)
-mission_frames=$(find "$OUT/mission/frames" -maxdepth 1 -type f | wc -l)
-"${NICE[@]}" "$REPO/.venv/bin/python" "$REPO/tools/pi_check.py" ops "$OUT/ops.json" \
-    --detect-frames "$frames" --replay-frames "$mission_frames" -- \
-    detect --json "$DATA/frames" / \
-    replay --config "$OUT/mission/camera.toml" --tlog "$OUT/mission/mission.tlog" \
-    --frames "$OUT/mission/frames" --thermal-frames "$OUT/mission/thermal" \
-    --out "$OUT/ops-replay/" 2>"$OUT/ops.log"
+    if [ -n "$(git -C "$REPO" status --porcelain --untracked-files=no)" ]; then
+        say "note: checking HEAD ($(git -C "$REPO" rev-parse --short HEAD)); uncommitted changes are not part of it"
+    fi
+    rm -rf "$OUT"
+    mkdir -p "$OUT/host" "$OUT/pi" "$OUT/src"
+    git -C "$REPO" archive HEAD | tar -x -C "$OUT/src"
 
-say "comparing aarch64 with the host"
-"$REPO/.venv/bin/python" "$REPO/tools/pi_check.py" compare "$OUT/host" "$OUT/pi"
+    trap unmount_all EXIT
+    mount_in_root /proc /proc
+    mount_in_root /sys /sys
+    mount_in_root /dev /dev
+    cp -L /etc/resolv.conf "$PI_ROOT/etc/resolv.conf"
+
+    say "copying HEAD into the arm64 root's $SRC_IN_ROOT"
+    rm -rf "${PI_ROOT:?}$SRC_IN_ROOT"
+    cp -a "$OUT/src" "$PI_ROOT$SRC_IN_ROOT"
+
+    say "the README's set-up in the arm64 root (make .venv/.installed; log: $OUT/pi/setup.log)"
+    start=$(date +%s)
+    if ! in_root bash -c "cd $SRC_IN_ROOT && make .venv/.installed" >"$OUT/pi/setup.log" 2>&1; then
+        tail -n 30 "$OUT/pi/setup.log" >&2
+        die "the set-up failed in the arm64 root (the whole log: $OUT/pi/setup.log)"
+    fi
+    setup_s=$(( $(date +%s) - start ))
+    say "set-up done in ${setup_s} s (emulated)"
+    echo "$setup_s" >"$OUT/pi/setup_seconds"
+
+    # The same mission and pictures on both sides: the mission is recorded on the host
+    # (simulated time: the same seed gives the same frames), then bind-mounted read-only.
+    say "recording a ${MISSION_S} s '$MISSION_PRESET' mission on the host (both cameras)"
+    host_python -m scenarios.cli record --preset "$MISSION_PRESET" --out "$OUT/mission" \
+        --duration-s "$MISSION_S" --fps 5 --start-unix-s 1767000000 >"$OUT/host/record.log" 2>&1 \
+        || { tail -n 20 "$OUT/host/record.log" >&2; die "rescue-sim record failed"; }
+    mount_in_root "$DATA" "$DATA_IN_ROOT" ro
+    mount_in_root "$OUT/mission" "$MISSION_IN_ROOT" ro
+    mount_in_root "$OUT/pi" "$OUT_IN_ROOT"
+
+    say "detect and replay on the host"
+    start=$(date +%s)
+    run_side host "$DATA" "$OUT/mission" "$OUT/host" host_python -m companion.cli
+    echo $(( $(date +%s) - start )) >"$OUT/host/run_seconds"
+
+    say "detect and replay on aarch64 (emulated)"
+    start=$(date +%s)
+    run_side pi "$DATA_IN_ROOT" "$MISSION_IN_ROOT" "$OUT_IN_ROOT" \
+        in_root "$SRC_IN_ROOT/.venv/bin/rescue-companion"
+    echo $(( $(date +%s) - start )) >"$OUT/pi/run_seconds"
+    in_root "$SRC_IN_ROOT/.venv/bin/python" -c \
+        'import platform, sys; print(platform.machine(), platform.python_version())' \
+        >"$OUT/pi/platform"
+    in_root "$SRC_IN_ROOT/.venv/bin/pip" freeze --exclude-editable >"$OUT/pi/pip-freeze.txt"
+    say "aarch64 side: $(cat "$OUT/pi/platform"), set-up ${setup_s} s, detect + replay $(cat "$OUT/pi/run_seconds") s (emulated: no Pi figure)"
+
+    # What a Pi 5 must compute, counted on the host (the same models, the same frames).
+    say "model runs a frame and multiply-accumulates a run"
+    frames=$(find "$DATA/frames" -maxdepth 1 -type f | wc -l)
+    mission_frames=$(find "$OUT/mission/frames" -maxdepth 1 -type f | wc -l)
+    host_python "$OUT/src/tools/pi_check.py" ops "$OUT/ops.json" \
+        --detect-frames "$frames" --replay-frames "$mission_frames" -- \
+        detect --json "$DATA/frames" / \
+        replay --config "$OUT/mission/camera.toml" --tlog "$OUT/mission/mission.tlog" \
+        --frames "$OUT/mission/frames" --thermal-frames "$OUT/mission/thermal" \
+        --out "$OUT/ops-replay/" 2>"$OUT/ops.log"
+
+    say "comparing aarch64 with the host"
+    host_python "$OUT/src/tools/pi_check.py" compare "$OUT/host" "$OUT/pi"
+}
+
+main "$@"
