@@ -28,7 +28,7 @@ import functools
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -288,3 +288,33 @@ def load(registry: Registry) -> MergedMap:
     merged = merged_map(registry.coverage(), registry.origins())
     log.debug("coverage merged: %d cells in %.0f ms", len(merged.p), (time.monotonic() - t0) * 1e3)
     return merged
+
+
+_CLASS_CHARS = np.array(list("012"))
+
+
+def console_json(
+    merged: MergedMap, robots_ne_m: Mapping[int, tuple[float, float]]
+) -> dict[str, Any]:
+    """What the console draws: the map's box, one character per cell of it, row by
+    row from the southmost (``.`` never looked at, ``0`` looked at less than glanced
+    at, ``1`` glanced at, ``2`` searched well), the summary and the largest
+    unsearched places near the robots."""
+    box = merged.box()
+    out: dict[str, Any] = {
+        "cell_m": merged.cell_m,
+        "box": box,
+        "cells": "",
+        "summary": merged.summary(),
+        "places": [asdict(p) for p in merged.unsearched_places(robots_ne_m)],
+        "frame": "local" if merged.origin is None else "global",
+        "robots": list(merged.robots),
+        "unplaced": list(merged.unplaced),
+        "thresholds": {"searched_well": SEARCHED_WELL_P, "glanced_at": GLANCED_AT_P},
+    }
+    if box is not None:
+        n0, n1, e0, e1 = box
+        grid = np.full((n1 - n0 + 1, e1 - e0 + 1), ".")
+        grid[merged.cells[:, 0] - n0, merged.cells[:, 1] - e0] = _CLASS_CHARS[merged.classes()]
+        out["cells"] = "".join(grid.ravel())
+    return out

@@ -54,7 +54,7 @@ from hq.registry import Registry
 from hq.registry_file import RegistryError
 from hq.view import HqVictim, hq_victims
 from hq.web import access, assets
-from hq.web.downloads import EXPORTS, export_job
+from hq.web.downloads import EXPORTS, coverage_job, export_job
 from hq.web.feed import ConsoleDatabase, Hub, Job, T, picture_job
 from hq.web.limits import ConnectionLimits, capped_protocol
 from hq.web.notes import BadNote, Notes
@@ -214,6 +214,7 @@ class Console:
             Route("/api/victims/{hq_id:int}/note", self._add_note, methods=["POST"]),
             Route("/victims/{hq_id:int}/picture", self._picture),
             Route("/export/{name}", self._export_file),
+            Route("/api/coverage", self._coverage),
         ]
         app = Starlette(routes=routes, lifespan=lifespan)
         return access.Access(app, self.options.token, _static("login.html"))
@@ -369,6 +370,13 @@ class Console:
         cache = "private, max-age=86400" if version else "no-cache"
         headers = {"Cache-Control": cache, "X-Content-Type-Options": "nosniff"}
         return Response(jpeg, media_type="image/jpeg", headers=headers)
+
+    async def _coverage(self, _request: Request) -> Response:
+        try:
+            data = await self._run(coverage_job(self.live))
+        except RegistryError as exc:
+            return JSONResponse({"error": f"cannot read the registry: {exc}"}, 503)
+        return Response(data, media_type="application/json", headers={"Cache-Control": "no-cache"})
 
     async def _export_file(self, request: Request) -> Response:
         name = request.path_params["name"]

@@ -145,6 +145,89 @@ function initMap() {
   new Fit({ position: "topright" }).addTo(map);
   map.on("moveend zoomend", drawGrid);
   drawGrid();
+  // The searched-area map lies under the victims, the robots and their paths.
+  map.createPane("coverage").style.zIndex = 350;
+  const Legend = L.Control.extend({
+    onAdd() { return el("div", { id: "coverage-legend", class: "coverage-legend" }); },
+  });
+  new Legend({ position: "bottomleft" }).addTo(map);
+}
+
+// -- where the robots have looked (hq/coverage.py: the merged map) ----------------------
+
+// Three shades: searched well (p >= 0.9), glanced at (p >= 0.3), not searched (looked
+// at less, or never, inside the box of what the robots looked at).
+const COVERAGE_RGBA = {
+  "2": [26, 150, 65, 120],
+  "1": [166, 217, 106, 110],
+  "0": [215, 48, 39, 45],
+  ".": [215, 48, 39, 45],
+};
+let coverageLayer = null;
+let coveragePlaces = null;
+let coverageFetchedMs = 0;
+let coverageInFlight = false;
+
+function pct(x) { return `${Math.round(100 * x)} %`; }
+
+function drawCoverage(c) {
+  const legend = document.getElementById("coverage-legend");
+  if (coverageLayer) { coverageLayer.remove(); coverageLayer = null; }
+  if (coveragePlaces) { coveragePlaces.remove(); coveragePlaces = null; }
+  const s = c.summary;
+  const swatch = (k) => el("span", { class: "swatch", style: `background: rgba(${COVERAGE_RGBA[k].slice(0, 3).join(",")}, ${Math.min(1, COVERAGE_RGBA[k][3] / 160)})` });
+  if (legend) {
+    const lines = [el("b", {}, "Searched area")];
+    if (!c.box) {
+      lines.push(el("div", {}, "no robot has sent where it looked yet"));
+    } else {
+      lines.push(
+        el("div", { id: "coverage-share" }, `${pct(s.searched_well_share)} searched well · ${pct(s.glanced_at_share)} glanced at or better, of ${s.area_m2.toFixed(0)} m²`),
+        el("div", {}, swatch("2"), " searched well ", swatch("1"), " glanced at ", swatch("0"), " not searched"),
+      );
+      c.places.forEach((p, i) => {
+        const near = p.robot_sysid == null ? "" : ` · ${p.distance_m} m from R${p.robot_sysid}`;
+        lines.push(el("div", { class: "place" }, `#${i + 1} unsearched ${p.area_m2.toFixed(1)} m² at N ${signed(p.north_m)} E ${signed(p.east_m)}${near}`));
+      });
+      if (c.unplaced.length) lines.push(el("div", { class: "warn" }, `robot ${c.unplaced.join(", ")}: no EKF origin, its map is not shown`));
+      lines.push(el("div", { class: "note" }, "claimed from the cameras, no depth: floor behind tall debris counts as seen"));
+    }
+    legend.replaceChildren(...lines);
+  }
+  if (!c.box || !map) return;
+  const [n0, n1, e0, e1] = c.box;
+  const rows = n1 - n0 + 1;
+  const cols = e1 - e0 + 1;
+  const canvas = document.createElement("canvas");
+  canvas.width = cols;
+  canvas.height = rows;
+  const ctx = canvas.getContext("2d");
+  const img = ctx.createImageData(cols, rows);
+  for (let r = 0; r < rows; r++) {
+    const y = rows - 1 - r; // row 0 is the southmost; the image's top is north
+    for (let k = 0; k < cols; k++) {
+      const rgba = COVERAGE_RGBA[c.cells[r * cols + k]];
+      img.data.set(rgba, 4 * (y * cols + k));
+    }
+  }
+  ctx.putImageData(img, 0, 0);
+  const m = c.cell_m;
+  coverageLayer = L.imageOverlay(canvas.toDataURL(), [[n0 * m, e0 * m], [(n1 + 1) * m, (e1 + 1) * m]], {
+    pane: "coverage", interactive: false, className: "coverage-layer",
+  }).addTo(map);
+  coveragePlaces = L.layerGroup(c.places.map((p, i) => L.marker([p.north_m, p.east_m], {
+    interactive: false, pane: "coverage",
+    icon: L.divIcon({ className: "place-mark", html: `#${i + 1} unsearched ${p.area_m2.toFixed(0)} m²`, iconSize: null }),
+  }))).addTo(map);
+}
+
+function fetchCoverage() {
+  if (coverageInFlight) return;
+  coverageInFlight = true;
+  coverageFetchedMs = Date.now();
+  fetch("/api/coverage").then((r) => (r.ok ? r.json() : null)).then((c) => {
+    if (c) { window.hqCoverage = c; drawCoverage(c); }
+  }, () => {}).finally(() => { coverageInFlight = false; });
 }
 
 function fitAll() {
@@ -472,6 +555,7 @@ function render(newState) {
   drawBanners(connected);
   drawList();
   drawMap();
+  if (Date.now() - coverageFetchedMs > 3000) fetchCoverage(); // at most every 3 s
   document.body.dataset.rendered = String(Date.now());
   if (window.hqFirstRenderMs === undefined) window.hqFirstRenderMs = performance.now();
   window.dispatchEvent(new CustomEvent("hq-state", { detail: state }));
@@ -504,6 +588,7 @@ function connect() {
 
 initMap();
 connect();
+setInterval(() => { if (Date.now() - coverageFetchedMs > 10000) fetchCoverage(); }, 5000);
 setInterval(() => {
   document.getElementById("clock").textContent = `HQ ${clock(hqNow())}`;
   tickTimes(document);
