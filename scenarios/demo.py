@@ -42,7 +42,9 @@ from typing import IO, Any
 from companion.config import load_config
 from companion.missionmap import MapTruth, MapVictim, draw_mission_map
 from companion.replay import ReplayReport, replay
+from fusion.coverage import CoverageGrid
 from fusion.types import TrackState
+from hq import coverage as hq_coverage
 from hq.registry import Registry
 from hq.simrobot import SimRobot
 from hq.view import hq_victims
@@ -82,6 +84,7 @@ class DemoResult:
     score_text: str
     companion_exit: int
     hq_exit: int
+    searched_text: str = ""  # the share of the floor searched (the coverage map, issue 43)
 
 
 def _companion_config(sim: LiveSim, out_dir: Path) -> Path:
@@ -318,7 +321,9 @@ def _run_recorded(
         if v.first_in_view_unix_s is not None
     }
     reported_at = {(result.robot_sysid, vid): t for vid, t in result.first_reported_unix_s.items()}
-    return _summarise(world, out_dir, result.route_ne_m, first_in_view, 0, hq_exit, reported_at)
+    return _summarise(
+        world, out_dir, result.route_ne_m, first_in_view, 0, hq_exit, reported_at, result.coverage
+    )
 
 
 def _run_live(
@@ -375,16 +380,30 @@ def _summarise(
     companion_exit: int,
     hq_exit: int,
     reported_at: dict[tuple[int, int], float] | None = None,
+    coverage: CoverageGrid | None = None,
 ) -> DemoResult:
     """Score and map what the HQ holds (the victims ``rescue-hq list`` shows).
     ``reported_at``: when each (robot, victim) was first reported, on the mission's
-    clock; default: when the HQ first received it."""
+    clock; default: when the HQ first received it. ``coverage``: where the robot
+    looked; default: the HQ's merged map."""
     registry = Registry(out_dir / "hq.sqlite")
     try:
         victims = [v for v in hq_victims(registry) if v.state is not TrackState.FALSE_ALARM]
         received = registry.first_received_unix_s() if reported_at is None else reported_at
+        if coverage is None:
+            merged = hq_coverage.load(registry)
+            coverage = CoverageGrid()
+            coverage.add_look(merged.cells, merged.p)
     finally:
         registry.close()
+    floor = (0.0, world.size_m[0], 0.0, world.size_m[1])
+    searched = coverage.summary(floor)
+    searched_text = (
+        f"floor searched well: {100 * searched.searched_well_share:.0f} % "
+        f"(glanced at or better: {100 * searched.glanced_at_share:.0f} %) "
+        f"of the {world.size_m[0]:g} x {world.size_m[1]:g} m floor, as the cameras claim it "
+        "(no depth: floor behind tall debris counts as seen)"
+    )
     reported = [
         ReportedVictim(
             v.hq_id,
@@ -424,7 +443,8 @@ def _summarise(
             for v in world.victims
         ],
         [d.polygon for d in world.debris],
-        (0.0, world.size_m[0], 0.0, world.size_m[1]),
+        floor,
+        coverage,
     )
     cameras = {v.hq_id: v.cues.cameras or "?" for v in victims}
     table = _victim_table(world, result, reported, first_in_view, cameras)
@@ -435,6 +455,7 @@ def _summarise(
         table + "\n\n" + format_score(result),
         companion_exit,
         hq_exit,
+        searched_text,
     )
 
 
@@ -487,6 +508,8 @@ def print_summary(result: DemoResult) -> None:
     print(listing.stdout.rstrip() or listing.stderr.rstrip())
     print("\nagainst the world's ground truth:")
     print(result.score_text)
+    if result.searched_text:
+        print(f"\n{result.searched_text}")
     print(f"\nmission map: {result.map_png}")
     print(f"HQ exports: {result.out_dir / 'exports'} (GeoJSON, KML, CSV)")
     logs = [result.out_dir / n for n in ("companion.log", "hq.log")]
