@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import random
 import sqlite3
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -188,3 +190,24 @@ def test_the_decoder_refuses_random_bytes_with_bad_piece_only() -> None:
             assert str(exc) and "\n" not in str(exc)
             continue
         assert len(piece) <= coverage.CELLS_PER_PIECE and piece.cell_m > 0
+
+
+@pytest.mark.parametrize(
+    ("section", "expected"),
+    [
+        ("rate_bytes_s = 10.0", "[coverage] rate_bytes_s = 10.0: must be 50..100000"),
+        ("period_s = 0.1", "[coverage] period_s = 0.1: must be 1..3600"),
+        ('rate_bytes_s = "fast"', "coverage.rate_bytes_s = 'fast': expected a number"),
+    ],
+)
+def test_check_config_names_a_bad_coverage_setting_in_one_line(
+    tmp_path: Path, section: str, expected: str
+) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f"[coverage]\n{section}\n")
+    run = subprocess.run(
+        [sys.executable, "-m", "companion.cli", "check-config", "--config", str(cfg)],
+        capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[1],
+    )  # fmt: skip
+    assert run.returncode != 0
+    assert expected in run.stderr and "Traceback" not in run.stderr
