@@ -23,11 +23,12 @@ from typing import Protocol
 import numpy as np
 
 from companion.config import Config
+from companion.coverage import LIT_LUMA
 from companion.reporting import Decision, ReportPolicy
 from companion.sources import Frame
 from companion.sources.thermal import ThermalFrame
 from companion.vision import Detector, FrameGeometry, assess
-from fusion.camera import CameraModel
+from fusion.camera import CameraModel, rotation_zyx
 from fusion.errors import GeolocationRejected, PoseUnavailable
 from fusion.geolocate import geolocate, in_view
 from fusion.params import GeolocationParams
@@ -135,6 +136,7 @@ class Pipeline:
             self._geo,
             self._miss_geo,
             lambda geometry: self.detector.detect(frame.image, geometry, frame.t_mono_s),
+            lambda pose: _clear_look(frame.image, self.camera, pose, self._miss_geo),
             lambda det: (
                 "person" in det.cues
                 and (det.bbox_xywh_px[0] <= 1 or sum(det.bbox_xywh_px[::2]) >= width_px - 1)
@@ -159,6 +161,7 @@ class Pipeline:
             self._thermal_geo,
             self._thermal_miss_geo,
             lambda geometry: detector.detect(frame.temps_c, geometry, frame.t_mono_s),
+            None,
             lambda det: det.bbox_xywh_px[0] <= 1 or sum(det.bbox_xywh_px[::2]) >= width_px - 1,
             Sensor.THERMAL,
         )
@@ -172,6 +175,7 @@ class Pipeline:
         geo: GeolocationParams,
         miss_geo: GeolocationParams,
         detect: Callable[[FrameGeometry], list[Detection]],
+        clear_look: Callable[[PoseSample], Callable[[float, float], bool]] | None,
         cut_by_frame: Callable[[Detection], bool],
         sensor: Sensor,
     ) -> FrameOutcome:
@@ -197,6 +201,7 @@ class Pipeline:
             t_unix_s,
             lambda n, e: in_view(camera, pose, n, e, miss_geo),
             sensor,
+            clear_look(pose) if clear_look is not None else None,
         )
         decisions = self.policy.decide(events, self.tracker.victims(), t_unix_s)
         self.counters.detections += len(detections)
@@ -243,3 +248,34 @@ class Pipeline:
             range_m=fix.range_m,
             part_only=bool(PARTS & set(det.cues)) and "person" not in det.cues,
         )
+
+
+def _clear_look(
+    image: np.ndarray, camera: CameraModel, pose: PoseSample, geo: GeolocationParams
+) -> Callable[[float, float], bool]:
+    """Where the colour frame had a clear look at the floor: in view within ``geo``'s
+    range and lit there (the mean luma of the 16x16 pixels around the point at least
+    LIT_LUMA, the level the person models work at; docs/VISION.md)."""
+
+    def clear(north_m: float, east_m: float) -> bool:
+        if not in_view(camera, pose, north_m, east_m, geo):
+            return False
+        r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+        vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
+        point = np.array([[north_m, east_m, pose.down_m + geo.floor_down_m]])
+        px, inside = camera.project_ned(point, vehicle, r_ned_body)
+        if not inside[0]:
+            return False
+        u, v = int(px[0, 0]), int(px[0, 1])
+        patch = image[max(0, v - 8) : v + 8, max(0, u - 8) : u + 8]
+        if patch.size == 0:
+            return False
+        luma = float(patch.mean()) / 255.0 if patch.ndim == 2 else _mean_luma(patch)
+        return luma >= LIT_LUMA
+
+    return clear
+
+
+def _mean_luma(bgr: np.ndarray) -> float:
+    b, g, r = (float(bgr[..., i].mean()) for i in range(3))
+    return (0.114 * b + 0.587 * g + 0.299 * r) / 255.0

@@ -119,6 +119,13 @@ class TrackerParams:
     # ID, but then two people lying 0.6 m apart merge (2026-11-27): not done.
     merge_chi2: float = 5.99
     urgency_window: int = 15  # recent visibility observations used for the class
+    # A victim only the thermal camera has found, which the colour camera has looked
+    # at this many times (lit, within miss_max_range_m) and never seen, shows nothing
+    # of its body to the eye: its warmth comes through cover (a blanket, dust), and
+    # its visibility is at most covered_visibility_pct (CRITICAL). The thermal
+    # camera alone cannot tell a body under dust from a clothed one (docs/VISION.md).
+    covered_after_looks: int = 5
+    covered_visibility_pct: float = 5.0
     urgency_hysteresis_pct: float = 3.0  # a class boundary must be crossed by this much
     # An unmatched observation this close (chi-square, 2 dof; 18.42 = 99.99 %) to an
     # existing track is an outlier or duplicate of it and starts no new track.
@@ -156,6 +163,13 @@ class TrackerParams:
         _require(self.not_seen_recently_s > 0.0, self, "not_seen_recently_s", "must be > 0")
         _require(self.merge_chi2 > 0.0, self, "merge_chi2", "must be > 0")
         _require(self.urgency_window >= 1, self, "urgency_window", "must be >= 1")
+        _require(self.covered_after_looks >= 1, self, "covered_after_looks", "must be >= 1")
+        _require(
+            0.0 <= self.covered_visibility_pct < 10.0,
+            self,
+            "covered_visibility_pct",
+            "must be in [0, 10): a covered body reads CRITICAL",
+        )
         _require(
             self.new_track_exclusion_chi2 >= self.gate_chi2,
             self,

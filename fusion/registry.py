@@ -137,7 +137,8 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "urgency" (Urgency name), "visibility_pct", "merged_into": int | null,
 #                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...],
 #                "fixes": [[t_unix_s, north_m, east_m], ...],
-#                "warm_hits": int, "cues": int (a fusion.types.Cue bitmask)}]}
+#                "warm_hits": int, "cues": int (a fusion.types.Cue bitmask),
+#                "colour_looks": int}]}
 #
 # "seen_with" was added to version 1 on 2026-11-27 (a snapshot written before reads as
 # []), and "body_seen": bool with it, which "body_hits" and "part_hits" (detections as
@@ -149,7 +150,9 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 # as on the vehicle link: a stored fix at 1e154 m overflowed the median.
 # "warm_hits" (detections by the thermal camera) and "cues" (which sensing saw the
 # track) were added on 2026-11-29; a snapshot without them reads as 0 warm hits and
-# the colour cues its body and part hits imply.
+# the colour cues its body and part hits imply. "colour_looks" (clear colour looks that
+# found nothing at a track only the thermal camera found) was added on 2026-11-29 too;
+# without it, 0.
 
 _ALL_CUES = Cue.COLOUR_BODY | Cue.COLOUR_PART | Cue.WARM
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
@@ -182,6 +185,7 @@ class TrackRecord:
     fixes: tuple[tuple[float, float, float], ...] = ()  # (t_unix_s, north_m, east_m)
     warm_hits: int = 0  # detections by the thermal camera
     cues: Cue = NO_CUES  # which sensing has seen it
+    colour_looks: int = 0  # clear colour looks that found nothing (a warm-only track)
 
 
 def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) -> dict[str, Any]:
@@ -212,6 +216,7 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "fixes": [list(f) for f in r.fixes],
                 "warm_hits": r.warm_hits,
                 "cues": int(r.cues),
+                "colour_looks": r.colour_looks,
             }
             for r in records
         ],
@@ -323,6 +328,7 @@ def _record(obj: Any, where: str) -> TrackRecord:
     for i, (_t, north_m, east_m) in enumerate(fixes):
         _local(north_m, east_m, f"{where}.fixes[{i}]")
     warm_hits = _int(obj, "warm_hits", where, 0) if "warm_hits" in obj else 0
+    colour_looks = _int(obj, "colour_looks", where, 0) if "colour_looks" in obj else 0
     if "cues" in obj:
         cues_raw = _int(obj, "cues", where, 0)
         if cues_raw & ~int(_ALL_CUES):
@@ -355,6 +361,7 @@ def _record(obj: Any, where: str) -> TrackRecord:
         fixes=fixes,
         warm_hits=warm_hits,
         cues=cues,
+        colour_looks=colour_looks,
     )
 
 

@@ -146,9 +146,13 @@ class VictimTracker:
         now_unix_s: float,
         in_view: Callable[[float, float], bool],
         sensor: Sensor = Sensor.COLOUR,
+        looked_at: Callable[[float, float], bool] | None = None,
     ) -> list[TrackEvent]:
         """Fuse one frame's observations (possibly none) taken at ``now_unix_s`` by
-        ``sensor``'s camera, whose view ``in_view`` is."""
+        ``sensor``'s camera, whose view ``in_view`` is. ``looked_at`` (the colour
+        camera's): where it had a clear look, lit and in range; a track only the
+        thermal camera has found, looked at there and not detected, shows the eye
+        nothing of its body (see TrackerParams.covered_after_looks)."""
         if not math.isfinite(now_unix_s):
             raise ValueError(f"now_unix_s must be finite, got {now_unix_s!r}")
         events: list[TrackEvent] = []
@@ -163,6 +167,8 @@ class VictimTracker:
         self._note_seen_together([live[i] for i, _ in pairs])
         self._spawn(live, observations, pairs, d2, now_unix_s)
         self._negative_evidence(live, in_view, sensor)
+        if looked_at is not None and sensor == Sensor.COLOUR:
+            self._colour_looks(live, looked_at, events)
         self._life_cycle(live, now_unix_s, events)
         self._merge(events)
         return events
@@ -280,9 +286,27 @@ class VictimTracker:
             if t.state == TrackState.TENTATIVE:
                 t.seen_with |= confirmed
 
+    def _colour_looks(
+        self, live: list[Track], looked_at: Callable[[float, float], bool], events: list[TrackEvent]
+    ) -> None:
+        """Count the colour camera's clear looks at the tracks only the thermal camera
+        has found; enough of them cap the visibility (TrackerParams.covered_after_looks)."""
+        for t in live:
+            if t.matched or t.cues != Cue.WARM or t.state in _ABSORBING:
+                continue
+            x = t.x
+            if not looked_at(float(x[0]), float(x[1])):
+                continue
+            t.colour_looks += 1
+            if self._reclassify(t) and t.state == TrackState.CONFIRMED:
+                events.append(TrackEvent(EventKind.URGENCY_CHANGED, victim_of(t)))
+
     def _reclassify(self, t: Track) -> bool:
         """Refresh the visibility estimate and the class; True if the class changed."""
+        p = self._params
         t.visibility_pct = weighted_median([h[1] for h in t.history], [h[2] for h in t.history])
+        if t.cues == Cue.WARM and t.colour_looks >= p.covered_after_looks:
+            t.visibility_pct = min(t.visibility_pct, p.covered_visibility_pct)
         urgency = classify(t.urgency, t.visibility_pct, self._params.urgency_hysteresis_pct)
         changed = urgency != t.urgency
         t.urgency = urgency
@@ -408,6 +432,7 @@ class VictimTracker:
         older.body_hits += younger.body_hits
         older.part_hits += younger.part_hits
         older.warm_hits += younger.warm_hits
+        older.colour_looks += younger.colour_looks
         older.cues |= younger.cues
         older.take_fixes(younger)
         for t in self._tracks.values():  # seen beside the younger ID: beside the victim

@@ -128,3 +128,40 @@ def test_merging_two_victims_keeps_every_cue() -> None:
     assert [e.kind for e in events] == [EventKind.MERGED]
     (survivor,) = [v for v in restored.victims() if v.merged_into is None]
     assert survivor.cues == Cue.COLOUR_BODY | Cue.WARM
+
+
+def never(_n: float, _e: float) -> bool:
+    return False
+
+
+def test_a_warm_body_the_colour_camera_looked_at_clearly_and_never_saw_is_critical() -> None:
+    # The thermal camera sees a person's warmth through a blanket as 40 % of a body;
+    # the colour camera, looking at the place in good light, sees only the blanket.
+    params = TrackerParams(covered_after_looks=5)
+    lit, dark = VictimTracker(params), VictimTracker(params)
+    for tracker, looked_at in ((lit, always), (dark, never)):
+        for k in range(6):
+            warm = [obs(2.0, 3.0, k, Sensor.THERMAL, visibility_pct=40.0)]
+            tracker.update(warm, T0 + k, always, Sensor.THERMAL)
+            tracker.update([], T0 + k + 0.05, always, Sensor.COLOUR, looked_at)
+    (covered,) = lit.victims()
+    assert covered.urgency == Urgency.CRITICAL
+    assert covered.visibility_pct == params.covered_visibility_pct
+    # In the dark the colour camera saw nothing, which says nothing.
+    (unlit,) = dark.victims()
+    assert unlit.urgency == Urgency.MEDIUM
+    # The count survives a restart.
+    restored = VictimTracker.restore(params, copy.deepcopy(lit.snapshot()))
+    assert restored.snapshot() == lit.snapshot()
+
+
+def test_colour_looks_do_not_cap_a_body_the_colour_camera_has_seen() -> None:
+    tracker = VictimTracker(PARAMS)
+    for k in range(8):
+        seen = [obs(2.0, 3.0, k, Sensor.THERMAL, visibility_pct=60.0)]
+        tracker.update(seen, T0 + k, always, Sensor.THERMAL)
+        colour = [obs(2.02, 3.0, k + 0.05, visibility_pct=60.0)] if k == 0 else []
+        tracker.update(colour, T0 + k + 0.05, always, Sensor.COLOUR, always)
+    (victim,) = tracker.victims()
+    assert victim.cues == Cue.COLOUR_BODY | Cue.WARM
+    assert victim.urgency == Urgency.LIGHT

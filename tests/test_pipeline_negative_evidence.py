@@ -14,16 +14,17 @@ import numpy as np
 import pytest
 
 from companion.config import Config
-from companion.pipeline import Pipeline
+from companion.pipeline import Pipeline, ThermalEye
 from companion.reporting import ReportPolicy
 from companion.sources import Frame
+from companion.sources.thermal import ThermalFrame
 from companion.vision import FrameGeometry
 from fusion.geolocate import geolocate
 from fusion.pose import PoseHistory
 from fusion.registry import EventKind
 from fusion.tracker import VictimTracker
 from fusion.types import Detection, PoseSample
-from scenarios.camera import default_camera
+from scenarios.camera import default_camera, default_thermal_camera
 
 
 class _Scripted:
@@ -111,3 +112,52 @@ def test_a_body_cut_by_the_side_of_the_frame_is_doubted_where_the_rest_may_be() 
     cut_cov = np.array(located[0][1].cov_ne_m2)
     plain = geolocate(camera, pose, ul, vl, config.geolocation)
     assert np.linalg.det(cut_cov) > 2 * np.linalg.det(np.array(plain.cov_ne_m2))
+
+
+class _Warm:
+    """A thermal detector that finds the same warm body, 40 % of it bare, every frame."""
+
+    def __init__(self, range_m: float) -> None:
+        self.range_m = range_m
+
+    def detect(self, temps_c, geometry, t_mono_s):  # type: ignore[no-untyped-def]
+        pixels = geometry.pixels_of_floor(np.array([[self.range_m, 0.0]]))
+        u, v = (float(x) for x in pixels[0])
+        whole = geometry.expected_body_area_px(u, v)
+        box = (int(u) - 10, int(v) - 5, 20, 10)
+        return [Detection(t_mono_s, u, v, box, 0.4 * whole, 0.9, "thermal", cues=("warm",))]
+
+
+def _urgency_of_a_warm_body(grey: int) -> str:
+    """A body only the thermal camera finds, 2 m ahead, while the colour camera's
+    frames (all ``grey``) find nothing there."""
+    config = Config()
+    eye = ThermalEye(default_thermal_camera(), _Warm(2.0))
+    colour = _Scripted([[] for _ in range(12)])
+    pipeline = Pipeline(
+        config,
+        default_camera(),
+        colour,
+        VictimTracker(config.tracker),
+        ReportPolicy(1.0, 0.5, 1.0),
+        eye,
+    )
+    poses = PoseHistory(60.0)
+    for i in range(40):
+        poses.add(PoseSample(i * 0.2, 10.0 + i * 0.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    temps = np.full((120, 160), 18.0, np.float32)
+    for i in range(12):
+        t_s = 10.2 + i * 0.2
+        pipeline.process_thermal(ThermalFrame(temps, t_s, 1_700_000_000.0 + t_s, i), poses)
+        image = np.full((480, 640, 3), grey, np.uint8)
+        t_s += 0.1
+        pipeline.process(Frame(image, t_s, 1_700_000_000.0 + t_s, i), poses)
+    (victim,) = pipeline.tracker.victims()
+    return victim.urgency.name
+
+
+def test_a_warm_body_the_colour_camera_sees_nothing_of_in_good_light_is_critical() -> None:
+    # Its warmth comes through a sheet or dust: nothing of the body shows.
+    assert _urgency_of_a_warm_body(grey=128) == "CRITICAL"
+    # In the dark the colour camera's looks say nothing: the warmth's 40 % stands.
+    assert _urgency_of_a_warm_body(grey=5) == "MEDIUM"
