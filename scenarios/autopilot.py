@@ -6,6 +6,12 @@ It behaves as ArduPilot Rover does on its MAVLink ports ("links", numbered 0..n-
   GLOBAL_POSITION_INT and SIM_STATE (the true pose) at default rates;
   GPS_GLOBAL_ORIGIN and HOME_POSITION once at boot, when the origin changes, and
   on request;
+- drives as Rover does (scenarios/autopilot_drive.py): its mode in HEARTBEAT's
+  custom_mode; SET_MODE and MAV_CMD_DO_SET_MODE to MANUAL, HOLD, AUTO or GUIDED
+  (COMMAND_ACK; other modes MAV_RESULT_FAILED); SET_POSITION_TARGET_LOCAL_NED in
+  GUIDED (no ack, as ArduPilot); MISSION_SET_CURRENT (answered by MISSION_CURRENT)
+  and MAV_CMD_DO_SET_MISSION_CURRENT; MISSION_CURRENT on request or at a requested
+  interval (none by default);
 - honours COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL (per link, like ArduPilot),
   MAV_CMD_REQUEST_MESSAGE, MAV_CMD_GET_HOME_POSITION and
   MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, answering COMMAND_ACK (MAV_RESULT_UNSUPPORTED
@@ -36,6 +42,7 @@ from fusion.types import GlobalOrigin
 from mavlink_io import dialect
 from mavlink_io.convert import e7_from_deg
 from mavlink_io.dialect import RESCUE_MESSAGE_IDS
+from scenarios.autopilot_drive import MODE_NAMES, Drive
 from scenarios.motion import PoseError, Trajectory, TruePose
 
 log = logging.getLogger(__name__)
@@ -49,6 +56,7 @@ ATTITUDE = 30
 LOCAL_POSITION_NED = 32
 GLOBAL_POSITION_INT = 33
 SIM_STATE = 108
+MISSION_CURRENT = 42
 GPS_GLOBAL_ORIGIN = 49
 HOME_POSITION = 242
 
@@ -62,12 +70,13 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     SIM_STATE: 4.0,
     GPS_GLOBAL_ORIGIN: 0.0,
     HOME_POSITION: 0.0,
+    MISSION_CURRENT: 0.0,
 }
 STREAMABLE = frozenset(DEFAULT_RATES_HZ)
 
 # REQUEST_DATA_STREAM stream ids (MAV_DATA_STREAM) -> our messages, as ArduPilot groups them.
 DATA_STREAMS: dict[int, tuple[int, ...]] = {
-    2: (SYS_STATUS,),  # EXTENDED_STATUS
+    2: (SYS_STATUS, MISSION_CURRENT),  # EXTENDED_STATUS
     6: (GLOBAL_POSITION_INT, LOCAL_POSITION_NED),  # POSITION
     10: (ATTITUDE, SIM_STATE),  # EXTRA1
     12: (SYSTEM_TIME,),  # EXTRA3
@@ -77,10 +86,13 @@ MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MAV_CMD_GET_HOME_POSITION = 410
 MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_SET_MISSION_CURRENT = 224
+MSG_SET_MODE = 11  # ArduPilot acknowledges SET_MODE with COMMAND_ACK(command=11)
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_DENIED = 2
 MAV_RESULT_UNSUPPORTED = 3
-ROVER_MODE_AUTO = 10
+MAV_RESULT_FAILED = 4
 REBOOT_SILENCE_S = 2.0
 
 
@@ -122,6 +134,8 @@ class Autopilot:
     ) -> None:
         self.m = dialect.load()
         self.trajectory = trajectory
+        self.drive = Drive(trajectory)
+        self.armed = True
         self.world_origin = origin
         self.sysid, self.compid = sysid, compid
         self.unix_of = unix_of
@@ -168,6 +182,15 @@ class Autopilot:
         """Nothing goes out or comes in on the link(s) for duration_s."""
         for i in range(len(self.links)) if link is None else (link,):
             self.links[i].dropped_until_s = t_s + duration_s
+
+    def set_mode(self, mode: int, t_s: float) -> None:
+        """Change the mode (a command, or a test's operator at the RC switch)."""
+        log.info("autopilot mode %s at t=%.2f s", MODE_NAMES.get(mode, mode), t_s)
+        self.drive.set_mode(mode, t_s)
+
+    def block(self, north_m: float, east_m: float, radius_m: float) -> None:
+        """A test's obstacle: from the next command on, the rover cannot enter it."""
+        self.drive.blocked = (*self.drive.blocked, (north_m, east_m, radius_m))
 
     def boot_s(self, t_s: float) -> float:
         return max(0.0, t_s - self.boot_t0_s)
@@ -221,7 +244,7 @@ class Autopilot:
 
     def estimate(self, t_s: float) -> tuple[TruePose, TruePose]:
         """(truth, estimate) at t_s."""
-        true = self.trajectory.pose_at(t_s)
+        true = self.drive.pose_at(t_s)
         dn, de, dyaw = self.error.drift(t_s)
         pn, pa = self.position_noise_m, self.attitude_noise_rad
         r = self._rng.standard_normal(6)

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from fusion.types import GlobalOrigin
 from mavlink_io.convert import e7_from_deg, usec_from_unix_s
 from scenarios import autopilot as ap
+from scenarios import autopilot_drive as drive
 
 if TYPE_CHECKING:
     from scenarios.autopilot import Autopilot, Out
@@ -40,7 +41,7 @@ def build(a: Autopilot, msgid: int, t_s: float) -> Any:
     if msgid == ap.HEARTBEAT:
         base = (
             m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-            | m.MAV_MODE_FLAG_SAFETY_ARMED
+            | (m.MAV_MODE_FLAG_SAFETY_ARMED if a.armed else 0)
             | m.MAV_MODE_FLAG_AUTO_ENABLED
             | m.MAV_MODE_FLAG_STABILIZE_ENABLED
             | m.MAV_MODE_FLAG_GUIDED_ENABLED
@@ -49,7 +50,7 @@ def build(a: Autopilot, msgid: int, t_s: float) -> Any:
             m.MAV_TYPE_GROUND_ROVER,
             m.MAV_AUTOPILOT_ARDUPILOTMEGA,
             base,
-            ap.ROVER_MODE_AUTO,
+            a.drive.mode,
             m.MAV_STATE_ACTIVE,
             3,
         )
@@ -68,6 +69,12 @@ def build(a: Autopilot, msgid: int, t_s: float) -> Any:
         )
     if msgid == ap.HOME_POSITION:
         return _home(a, t_s)
+    if msgid == ap.MISSION_CURRENT:
+        # mission_state 3: MISSION_STATE_ACTIVE (4: PAUSED, outside AUTO)
+        active = 3 if a.drive.mode == drive.MODE_AUTO else 4
+        return m.MAVLink_mission_current_message(
+            a.drive.mission_seq(t_s), a.drive.mission_items, active
+        )
     _true, est = a.estimate(t_s)
     if msgid == ap.ATTITUDE:
         return m.MAVLink_attitude_message(
@@ -96,7 +103,7 @@ def build(a: Autopilot, msgid: int, t_s: float) -> Any:
 
 
 def _sim_state(a: Autopilot, t_s: float) -> Any:
-    p = a.trajectory.pose_at(t_s)
+    p = a.drive.pose_at(t_s)
     q = _quat(p.roll_rad, p.pitch_rad, p.yaw_rad)
     lat_i, lon_i, alt_mm = a._geo(p)
     return a.m.MAVLink_sim_state_message(
@@ -172,6 +179,16 @@ def process(a: Autopilot, li: int, msg: Any, t_s: float) -> Out:
         now_ns = int(a.boot_s(t_s) * 1e9)
         reply = a.m.MAVLink_timesync_message(now_ns, msg.ts1)
         return [(li, reply.pack(link.mav))]
+    if kind == "SET_MODE":
+        result = _set_mode(a, msg.custom_mode, t_s)
+        return _ack(a, li, msg, ap.MSG_SET_MODE, result)
+    if kind == "MISSION_SET_CURRENT":
+        if a.drive.set_current(msg.seq, t_s):
+            return [(li, build(a, ap.MISSION_CURRENT, t_s).pack(link.mav))]
+        return []
+    if kind == "SET_POSITION_TARGET_LOCAL_NED":
+        _position_target(a, msg, t_s)
+        return []
     if kind == "SET_GPS_GLOBAL_ORIGIN":
         try:
             a.origin = GlobalOrigin(msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / _MS)
@@ -205,8 +222,41 @@ def _command(a: Autopilot, li: int, msg: Any, t_s: float) -> Out:
             return _ack(a, li, msg, cmd, ap.MAV_RESULT_DENIED)
         out = _ack(a, li, msg, cmd, ap.MAV_RESULT_ACCEPTED)
         return [*out, (li, build(a, msgid, t_s).pack(link.mav))]
+    if cmd == ap.MAV_CMD_DO_SET_MODE:
+        return _ack(a, li, msg, cmd, _set_mode(a, int(msg.param2), t_s))
+    if cmd == ap.MAV_CMD_DO_SET_MISSION_CURRENT:
+        ok = a.drive.set_current(int(msg.param1), t_s)
+        return _ack(a, li, msg, cmd, ap.MAV_RESULT_ACCEPTED if ok else ap.MAV_RESULT_FAILED)
     if cmd == ap.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN and int(msg.param1) == 1:
         out = _ack(a, li, msg, cmd, ap.MAV_RESULT_ACCEPTED)
         a.reboot(t_s)
         return out
     return _ack(a, li, msg, cmd, ap.MAV_RESULT_UNSUPPORTED)
+
+
+def _set_mode(a: Autopilot, mode: int, t_s: float) -> int:
+    if mode not in drive.MODES:
+        return ap.MAV_RESULT_FAILED  # a mode the simulator does not drive (RTL, ...)
+    a.set_mode(mode, t_s)
+    return ap.MAV_RESULT_ACCEPTED
+
+
+_POS_IGNORE = 1 | 2 | 4  # POSITION_TARGET_TYPEMASK_X/Y/Z_IGNORE
+_YAW_IGNORE = 1024  # POSITION_TARGET_TYPEMASK_YAW_IGNORE
+_MAV_FRAME_LOCAL_NED = 1
+
+
+def _position_target(a: Autopilot, msg: Any, t_s: float) -> None:
+    """Rover in GUIDED: drive to (x, y) north/east, or turn to the yaw; ArduPilot
+    sends no COMMAND_ACK for it (the companion sees the rover move)."""
+    if msg.coordinate_frame != _MAV_FRAME_LOCAL_NED:
+        return
+    target = None
+    if not msg.type_mask & _POS_IGNORE:
+        if not (math.isfinite(msg.x) and math.isfinite(msg.y)):
+            return
+        target = (float(msg.x), float(msg.y))
+    yaw = None
+    if not msg.type_mask & _YAW_IGNORE and math.isfinite(msg.yaw):
+        yaw = float(msg.yaw)
+    a.drive.guided_target(t_s, target, yaw)

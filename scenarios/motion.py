@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -112,21 +113,34 @@ class Trajectory:
         turn_rate_rad_s: float = math.radians(45.0),
         seed: int = 0,
         height_m: float = VEHICLE_HEIGHT_M,
+        start_speed_m_s: float = 0.0,
+        final_heading_rad: float | None = None,
+        blocked: tuple[tuple[float, float, float], ...] = (),
     ) -> None:
+        """``start_speed_m_s``, ``final_heading_rad`` (turn in place to it once the
+        route is done) and ``blocked`` (discs (north_m, east_m, radius_m) the rover
+        cannot enter: it stops at their edge, wheels spinning) serve the simulated
+        autopilot's GUIDED driving (scenarios/autopilot_drive.py); their defaults
+        leave the motion exactly as it always was."""
         if speed_m_s <= 0 or turn_rate_rad_s <= 0:
             raise ValueError("speed_m_s and turn_rate_rad_s must be positive")
         self.route = tuple(route)
+        self.final_heading_rad = final_heading_rad
+        self.blocked = tuple(blocked)
         self.speed_m_s = speed_m_s
         self.turn_rate_rad_s = turn_rate_rad_s
         self.height_m = height_m
         self._wobble = _Wobble(seed)
         # Integrated states: columns n, e, yaw, speed, yaw_rate; one row per _DT_S.
-        self._states = [np.array([start_ne_m[0], start_ne_m[1], start_heading_rad, 0.0, 0.0])]
+        self._states = [
+            np.array([start_ne_m[0], start_ne_m[1], start_heading_rad, start_speed_m_s, 0.0])
+        ]
         self._target = 0
+        self._target_steps: list[int] = []  # the state index at which each waypoint was reached
         self.finished_at_s: float | None = None if self.route else 0.0
 
     @classmethod
-    def for_world(cls, world: World, **kwargs: float) -> Trajectory:
+    def for_world(cls, world: World, **kwargs: Any) -> Trajectory:
         return cls(
             world.start_ne_m, world.start_heading_rad, route_of(world), seed=world.seed, **kwargs
         )
@@ -135,11 +149,17 @@ class Trajectory:
         n, e, yaw, v, _ = self._states[-1]
         if self._target >= len(self.route):
             v_cmd, yaw_rate = 0.0, 0.0
+            if self.final_heading_rad is not None and abs(v) < 1e-3:
+                err = _wrap(self.final_heading_rad - yaw)
+                yaw_rate = max(
+                    -self.turn_rate_rad_s, min(self.turn_rate_rad_s, _HEADING_GAIN * err)
+                )
         else:
             tn, te = self.route[self._target]
             dist = math.hypot(tn - n, te - e)
             if dist < _ARRIVE_M:
                 self._target += 1
+                self._target_steps.append(len(self._states))
                 if self._target >= len(self.route) and self.finished_at_s is None:
                     self.finished_at_s = (len(self._states) - 1) * _DT_S
                 self._states.append(np.array([n, e, yaw, v, 0.0]))
@@ -152,11 +172,12 @@ class Trajectory:
         v = v + dv
         yaw_new = _wrap(yaw + yaw_rate * _DT_S)
         mid = yaw + 0.5 * yaw_rate * _DT_S
-        self._states.append(
-            np.array(
-                [n + v * math.cos(mid) * _DT_S, e + v * math.sin(mid) * _DT_S, yaw_new, v, yaw_rate]
-            )
-        )
+        n_new, e_new = n + v * math.cos(mid) * _DT_S, e + v * math.sin(mid) * _DT_S
+        if self.blocked and any(
+            math.hypot(n_new - bn, e_new - be) < br for bn, be, br in self.blocked
+        ):
+            n_new, e_new, v = n, e, 0.0  # against the obstacle: no progress
+        self._states.append(np.array([n_new, e_new, yaw_new, v, yaw_rate]))
 
     def _ensure(self, index: int) -> None:
         while len(self._states) <= index:
@@ -187,6 +208,13 @@ class Trajectory:
             ve_m_s=float(v * math.sin(yaw)),
             yaw_rate_rad_s=float(b[4]),
         )
+
+    def target_at(self, t_s: float) -> int:
+        """The index of the route point the rover is driving to at t_s (len(route)
+        once it has reached the last)."""
+        i = int(max(0.0, t_s) / _DT_S) + 1
+        self._ensure(i)
+        return sum(1 for step in self._target_steps if step <= i)
 
     def duration_s(self, limit_s: float = 3600.0) -> float:
         """Time to finish the route (integrating up to limit_s)."""

@@ -5,6 +5,7 @@
     port = rover.local_address(0)[1]      # the companion connects here (udpout)
     ...
     rover.reboot(); rover.drop_link(3.0); rover.close()
+    rover.operator_sets_mode(0); rover.block(4.0, 2.0, 0.5)   # tests of closer looks
 
 Each link is a mavlink_io link (udpin, udpout, tcp, tcpin, serial) or "pty": a
 pseudo-terminal pair whose slave path (``rover.pty_path(i)``) a serial client opens.
@@ -190,7 +191,7 @@ class SimRover:
 
     def true_pose(self, t_s: float | None = None) -> TruePose:
         with self._lock:
-            return self.trajectory.pose_at(self.now_s() if t_s is None else t_s)
+            return self.autopilot.drive.pose_at(self.now_s() if t_s is None else t_s)
 
     def camera_pose(self) -> tuple[TruePose, float]:
         """The true pose now and now on the wall clock (Unix s): a CameraServer's pose_now."""
@@ -204,6 +205,24 @@ class SimRover:
     def drop_link(self, duration_s: float, link: int | None = None) -> None:
         """Drop one link (or all) for duration_s of simulation time."""
         self._inbox.put(lambda t: self.autopilot.drop_link(t, duration_s, link))
+
+    def operator_sets_mode(self, mode: int) -> None:
+        """The operator flips the RC mode switch (0 MANUAL, 4 HOLD, 10 AUTO, 15 GUIDED)."""
+        self._inbox.put(lambda t: self.autopilot.set_mode(mode, t))
+
+    def block(self, north_m: float, east_m: float, radius_m: float) -> None:
+        """An obstacle the rover cannot drive into after its next command (it gets stuck)."""
+        self._inbox.put(lambda _t: self.autopilot.block(north_m, east_m, radius_m))
+
+    def mode(self) -> int:
+        """The autopilot's mode now (HEARTBEAT's custom_mode)."""
+        with self._lock:
+            return self.autopilot.drive.mode
+
+    def mission_seq(self) -> int:
+        """The mission item the autopilot is at now (MISSION_CURRENT's seq)."""
+        with self._lock:
+            return self.autopilot.drive.mission_seq(self.now_s())
 
     # -- threads -------------------------------------------------------------------
 
