@@ -354,6 +354,61 @@ class CoverageConfig:
 
 
 @dataclass(frozen=True)
+class LooksConfig:
+    """Closer looks: short GUIDED detours to a candidate the companion cannot settle
+    (companion/looks.py, docs/LOOKS.md). Off unless enabled here or by RC_LOOK_ON."""
+
+    enabled: bool = False
+    view_min_m: float = 1.0  # the viewpoint is this far from the candidate at least...
+    view_max_m: float = 1.5  # ...and at most
+    beside_path_m: float = 0.5  # how far beside the path already driven a viewpoint may be
+    clearance_m: float = 0.9  # no viewpoint this close to any victim or candidate
+    max_detour_m: float = 8.0  # candidates farther than this from the rover are not visited
+    look_s: float = 4.0  # time spent looking at the viewpoint
+    look_budget_s: float = 60.0  # one look, from leaving the route to being back in AUTO
+    mission_budget_s: float = 300.0  # all looks of this run together
+    stuck_s: float = 8.0  # no 0.2 m of progress towards the viewpoint for this long: stuck
+    ack_timeout_s: float = 2.0  # a mode or mission command unanswered this long: aborted
+    tentative_min_s: float = 5.0  # a tentative track this old deserves a look
+    urgency_margin_pct: float = 4.0  # visibility this close to 10 or 50 %: urgency uncertain
+
+    def __post_init__(self) -> None:
+        for name in (
+            "view_min_m",
+            "view_max_m",
+            "beside_path_m",
+            "clearance_m",
+            "max_detour_m",
+            "look_s",
+            "look_budget_s",
+            "mission_budget_s",
+            "stuck_s",
+            "ack_timeout_s",
+            "tentative_min_s",
+            "urgency_margin_pct",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 < value <= 3600):
+                raise ValueError(f"{name} = {value!r}: must be a number in (0, 3600]")
+        if not 0.5 <= self.view_min_m <= self.view_max_m <= 5.0:
+            raise ValueError(
+                f"view_min_m = {self.view_min_m}, view_max_m = {self.view_max_m}: "
+                "must satisfy 0.5 <= view_min_m <= view_max_m <= 5"
+            )
+        if self.clearance_m >= self.view_min_m:
+            raise ValueError(
+                f"clearance_m = {self.clearance_m}: must be below view_min_m = {self.view_min_m}"
+            )
+        if self.look_budget_s > self.mission_budget_s:
+            raise ValueError(
+                f"look_budget_s = {self.look_budget_s}: must not exceed "
+                f"mission_budget_s = {self.mission_budget_s}"
+            )
+        if self.urgency_margin_pct > 20:
+            raise ValueError(f"urgency_margin_pct = {self.urgency_margin_pct}: must be <= 20")
+
+
+@dataclass(frozen=True)
 class Config:
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     hq: HqConfig = field(default_factory=HqConfig)
@@ -367,6 +422,7 @@ class Config:
     video: VideoConfig = field(default_factory=VideoConfig)
     pictures: PicturesConfig = field(default_factory=PicturesConfig)
     coverage: CoverageConfig = field(default_factory=CoverageConfig)
+    looks: LooksConfig = field(default_factory=LooksConfig)
     thermal: ThermalConfig | None = None  # built only when the file has a [thermal] section
 
 

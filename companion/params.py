@@ -7,6 +7,7 @@
 | RC_ANN_SEV         | [reporting] announce_severity       | MAV_SEVERITY of a new LIGHT/MEDIUM victim (<= 5 spoken) |
 | RC_VID_ON          | [video] enabled                     | live video on (1) or off (0) |
 | RC_VID_KBPS        | [video] bitrate_kbps                | live video bit rate, kbit/s |
+| RC_LOOK_ON         | [looks] enabled                     | closer looks allowed (1) or not (0); set to 0 by the companion when the operator takes over during a look |
 
 The config file is the source of the defaults. A value set from QGC is validated
 exactly as the config file's value is (the config dataclass checks it), applied at
@@ -43,6 +44,7 @@ SETTINGS = (
     Setting("RC_ANN_SEV", "reporting", "announce_severity"),
     Setting("RC_VID_ON", "video", "enabled"),
     Setting("RC_VID_KBPS", "video", "bitrate_kbps"),
+    Setting("RC_LOOK_ON", "looks", "enabled"),
 )
 _BY_NAME = {s.name: s for s in SETTINGS}
 

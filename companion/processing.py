@@ -28,6 +28,7 @@ from companion.coverage import CoverageMapper
 from companion.ground import Ground
 from companion.ledger import Ledger
 from companion.livevideo import LiveVideo
+from companion.looks_run import Looks
 from companion.pictures import Candidate, PictureChooser
 from companion.pipeline import FrameOutcome, Pipeline, PipelineCounters
 from companion.sdnotify import Notifier, watchdog_period_s
@@ -92,8 +93,10 @@ class Processing:
         faults: FaultInjection,
         started_mono_s: float,
         stop: threading.Event,
+        looks: Looks | None = None,
     ) -> None:
         self._config = config
+        self._looks = looks
         self._pipeline = pipeline
         self._tracker = pipeline.tracker
         self._policy = pipeline.policy
@@ -135,6 +138,8 @@ class Processing:
             self._ground.handle_actions()
             self._ground.handle_requests()
             self._check_origin()
+            if self._looks is not None:  # closer looks (companion/looks_run.py)
+                self._looks.tick(lambda: self._tracker.victims(include_tentative=True))
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)
             except CameraTimeout:

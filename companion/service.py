@@ -43,6 +43,7 @@ from companion.ground import Ground
 from companion.ledger import Ledger
 from companion.links import Links
 from companion.livevideo import LiveVideo
+from companion.looks_run import Looks
 from companion.params import Settings
 from companion.pipeline import Pipeline, ThermalEye
 from companion.processing import FaultInjection, FrameStats, Processing
@@ -214,7 +215,10 @@ class Service:
             announcer=self.announcer,
             m=m,
         )
+        # Closer looks: short GUIDED detours (docs/LOOKS.md); ticked by processing.
+        self.looks = Looks(config.looks, self.vehicle, self.announcer, self._looks_taken_over)
         self.processing = Processing(
+            looks=self.looks,
             config=config,
             pipeline=self.pipeline,
             mailbox=mailbox,
@@ -272,6 +276,13 @@ class Service:
         self.pipeline.detector.min_score = config.detector.min_score
         self.policy.update_min_interval_s = config.reporting.update_min_interval_s
         self.announcer.announce_severity = config.reporting.announce_severity
+        self.looks.set_enabled(config.looks.enabled)
+
+    def _looks_taken_over(self) -> None:
+        """The operator took over during a look (processing thread): RC_LOOK_ON goes to
+        0, saved, so no look starts again until the operator sets it to 1."""
+        if self.settings.get("RC_LOOK_ON"):
+            self.settings.set("RC_LOOK_ON", 0.0)
 
     def _save_settings(self, snapshot: dict[str, Any]) -> None:
         self.store.set("params", snapshot)

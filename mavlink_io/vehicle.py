@@ -178,6 +178,7 @@ class VehicleLink:
         self._tlog = tlog
         self._on_dialect = on_dialect
         self._on_message = on_message
+        self._listeners: tuple[Callable[[MavMessage, float], None], ...] = ()
         self._sysid = s.system_id
         # Other components this companion speaks for (its camera): requests addressed
         # to them also go to on_dialect; their replies go out through send_encoded.
@@ -251,6 +252,11 @@ class VehicleLink:
             # refused: autopilot messages with bad fields or an off-timeline boot time
             counters={**vars(self.counters), "refused": self.telemetry.refused.total()},
         )
+
+    def listen(self, callback: Callable[[MavMessage, float], None]) -> None:
+        """Also give every decoded message, with its arrival time (monotonic s), to
+        ``callback`` on the reader thread (the closer looks' AutopilotWatch)."""
+        self._listeners = (*self._listeners, callback)
 
     def send(self, msg: MavMessage) -> bool:
         """Encode and send as (vehicle sysid, our component); False if dropped."""
@@ -349,6 +355,8 @@ class VehicleLink:
             self._handle(msg, now)
             if self._on_message is not None:
                 self._on_message(msg)
+            for listener in self._listeners:
+                listener(msg, now)
         except Exception:  # a bug in one handler must not stop the vehicle link
             self.counters.handler_errors += 1
             log.exception("handling %s failed", msg.get_type())

@@ -45,6 +45,7 @@ def test_settings_validate_like_the_config_apply_and_save() -> None:
         "RC_ANN_SEV",
         "RC_VID_ON",
         "RC_VID_KBPS",
+        "RC_LOOK_ON",
     ]
     assert settings.get("RC_DET_MIN_SCORE") == 0.5
     assert settings.set("RC_DET_MIN_SCORE", 0.7) is None
@@ -201,6 +202,7 @@ def test_parameters_round_trip_with_a_pymavlink_ground_station(
                 "RC_ANN_SEV": 5,
                 "RC_VID_ON": 1,
                 "RC_VID_KBPS": 1000.0,
+                "RC_LOOK_ON": 0,
             }
         )
         assert gcs.param_set("RC_DET_MIN_SCORE", 0.7) == pytest.approx(0.7)

@@ -1,0 +1,551 @@
+"""Closer looks: which candidate deserves one, where to look from, and the steps.
+
+Pure decision logic, no I/O (the adapter is companion/looks_run.py):
+
+- ``candidates``: from the tracker's snapshots (``VictimTracker.victims(True)``), the
+  ones the companion cannot settle from the route's views: a tentative track still
+  unconfirmed ``tentative_min_s`` after it was first seen, a victim whose visibility
+  is within ``urgency_margin_pct`` of an urgency bound (10 or 50 %), and a find only
+  the thermal camera has seen.
+- ``viewpoint``: a point ``view_min_m``..``view_max_m`` from the candidate, at most
+  ``beside_path_m`` from the path already driven (known free), never within
+  ``clearance_m`` of any victim or candidate, the nearest such point to the rover;
+  the heading faces the candidate.
+- ``settlement``: what a look settled, comparing the candidate before with its track
+  after (confirmed, rejected, urgency changed, seen in colour), or None.
+- ``LookMachine``: idle -> guided (GUIDED asked) -> driving -> looking -> resuming
+  (the interrupted mission item, then AUTO) -> idle. ``step`` takes what the
+  autopilot last said (``mavlink_io.guided.AutopilotView``) and returns the commands
+  to send and the lines to announce. Safety: a look starts only when looks are on,
+  the link is up, the vehicle is an ArduPilot Rover, armed and in AUTO, and the
+  budgets allow; during a look, a mode the companion did not ask for ends it at once
+  and switches looks off (``switched_off``) until the operator switches them on
+  again; link loss, no progress (``stuck_s``), the look's time budget, or looks
+  switched off abort it and resume the mission; no candidate is looked at twice.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+from companion.config import LooksConfig
+from fusion.registry import Victim
+from fusion.types import Cue, TrackState, Urgency
+from mavlink_io.guided import (
+    MAV_CMD_DO_SET_MODE,
+    MAV_RESULT_ACCEPTED,
+    ROVER_AUTO,
+    ROVER_GUIDED,
+    AutopilotView,
+    mode_name,
+)
+
+PointNE = tuple[float, float]
+_PATH_STEP_M = 0.25  # the driven path keeps a point every this far
+_PATH_POINTS = 8000  # ~2 km of path
+_ARRIVED_M = 0.3
+_PROGRESS_M = 0.2  # progress that counts for the stuck check
+_FACED_RAD = math.radians(15.0)
+_RESEND_S = 2.0  # the position target again (UDP may lose it; ArduPilot takes it again)
+_RESUME_TRIES = 3
+_HEARTBEAT_FRESH_S = 1.5  # a mode command only on a heartbeat this recent
+_SEVERITY_NOTICE = 5
+_SEVERITY_WARNING = 4
+_SEVERITY_CRITICAL = 2
+_TURN_MAX_S = 10.0  # facing the candidate takes at most this; then the look starts anyway
+_COMPASS = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
+
+
+class Kind(Enum):
+    TENTATIVE = "possible victim"
+    URGENCY = "victim of uncertain urgency"
+    WARM_ONLY = "warm find"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    track_id: int
+    victim_id: int  # 0 while tentative
+    kind: Kind
+    north_m: float
+    east_m: float
+    state: TrackState
+    urgency: Urgency
+    cues: Cue
+
+    @property
+    def ne(self) -> PointNE:
+        return (self.north_m, self.east_m)
+
+
+_LIVE = (TrackState.TENTATIVE, TrackState.CONFIRMED, TrackState.NOT_SEEN_RECENTLY)
+
+
+def candidates(
+    victims: Iterable[Victim], now_unix_s: float, settings: LooksConfig
+) -> list[Candidate]:
+    """The candidates among the tracker's snapshots, most doubtful first."""
+    out: list[Candidate] = []
+    for v in victims:
+        if v.state not in _LIVE:
+            continue
+        kind = None
+        if v.state == TrackState.TENTATIVE:
+            if now_unix_s - v.first_seen_unix_s >= settings.tentative_min_s:
+                kind = Kind.TENTATIVE
+        elif not v.cues & (Cue.COLOUR_BODY | Cue.COLOUR_PART) and v.cues & Cue.WARM:
+            kind = Kind.WARM_ONLY
+        elif any(abs(v.visibility_pct - b) <= settings.urgency_margin_pct for b in (10.0, 50.0)):
+            kind = Kind.URGENCY
+        if kind is not None:
+            out.append(
+                Candidate(
+                    v.track_id,
+                    v.victim_id,
+                    kind,
+                    v.north_m,
+                    v.east_m,
+                    v.state,
+                    v.urgency,
+                    v.cues,
+                )
+            )
+    order = {Kind.TENTATIVE: 0, Kind.WARM_ONLY: 1, Kind.URGENCY: 2}
+    return sorted(out, key=lambda c: order[c.kind])
+
+
+def settlement(before: Candidate, after: Victim | None) -> str | None:
+    """What the look settled ("confirmed", "rejected", "urgency changed", "seen in
+    colour"), or None when the candidate is as doubtful as before."""
+    if after is None or after.state == TrackState.FALSE_ALARM:
+        return "rejected"
+    if after.state == TrackState.MERGED:
+        return f"merged into victim {after.merged_into}"
+    if before.state == TrackState.TENTATIVE and after.state != TrackState.TENTATIVE:
+        return "confirmed"
+    if after.urgency != before.urgency:
+        return f"urgency changed to {after.urgency.name}"
+    if before.kind == Kind.WARM_ONLY and after.cues & (Cue.COLOUR_BODY | Cue.COLOUR_PART):
+        return "seen in colour"
+    return None
+
+
+class DrivenPath:
+    """The rover's positions, a point every 0.25 m: where it has driven is free."""
+
+    def __init__(self, max_points: int = _PATH_POINTS) -> None:
+        self.points: deque[PointNE] = deque(maxlen=max_points)
+
+    def add(self, north_m: float, east_m: float) -> None:
+        if not self.points or math.dist(self.points[-1], (north_m, east_m)) >= _PATH_STEP_M:
+            self.points.append((north_m, east_m))
+
+
+@dataclass(frozen=True)
+class Viewpoint:
+    north_m: float
+    east_m: float
+    yaw_rad: float  # facing the candidate
+
+    @property
+    def ne(self) -> PointNE:
+        return (self.north_m, self.east_m)
+
+
+def viewpoint(
+    target: PointNE,
+    driven: Sequence[PointNE],
+    avoid: Sequence[PointNE],
+    rover: PointNE,
+    settings: LooksConfig,
+) -> Viewpoint | None:
+    """See the module docstring; None when no driven point gives one."""
+    lo, hi, beside = settings.view_min_m, settings.view_max_m, settings.beside_path_m
+    best: tuple[float, PointNE] | None = None
+    for p in driven:
+        d = math.dist(p, target)
+        if d < 1e-6 or not lo - beside <= d <= hi + beside:
+            continue
+        # Slide along the line to the candidate into [lo, hi]: at most `beside` away.
+        want = min(hi, max(lo, d))
+        s = want / d
+        q = (target[0] + (p[0] - target[0]) * s, target[1] + (p[1] - target[1]) * s)
+        if any(math.dist(q, a) < settings.clearance_m for a in avoid):
+            continue
+        cost = math.dist(q, rover)
+        if best is None or cost < best[0]:
+            best = (cost, q)
+    if best is None:
+        return None
+    q = best[1]
+    return Viewpoint(q[0], q[1], math.atan2(target[1] - q[1], target[0] - q[0]))
+
+
+def compass(from_ne: PointNE, to_ne: PointNE) -> str:
+    """ "2 m NE": the distance and the 8-point direction from one point to another."""
+    dn, de = to_ne[0] - from_ne[0], to_ne[1] - from_ne[1]
+    bearing = math.degrees(math.atan2(de, dn)) % 360.0
+    return f"{math.hypot(dn, de):.0f} m {_COMPASS[round(bearing / 45.0) % 8]}"
+
+
+# -- the steps ---------------------------------------------------------------------------
+
+
+class Phase(Enum):
+    IDLE = "idle"
+    GUIDED = "requesting GUIDED"
+    DRIVING = "driving"
+    LOOKING = "looking"
+    RESUMING = "resuming AUTO"
+    LINK_LOST = "link lost"
+
+
+@dataclass(frozen=True)
+class SetMode:
+    mode: int
+
+
+@dataclass(frozen=True)
+class GoTo:
+    north_m: float
+    east_m: float
+
+
+@dataclass(frozen=True)
+class Face:
+    yaw_rad: float
+
+
+@dataclass(frozen=True)
+class SetCurrent:
+    seq: int
+
+
+@dataclass(frozen=True)
+class RequestMissionCurrent:
+    pass
+
+
+Command = SetMode | GoTo | Face | SetCurrent | RequestMissionCurrent
+
+
+@dataclass(frozen=True)
+class Say:
+    text: str
+    severity: int
+
+
+@dataclass(frozen=True)
+class Rover:
+    """What the companion knows of the rover now."""
+
+    connected: bool
+    north_m: float | None = None
+    east_m: float | None = None
+    yaw_rad: float | None = None
+
+    @property
+    def ne(self) -> PointNE | None:
+        if self.north_m is None or self.east_m is None:
+            return None
+        return (self.north_m, self.east_m)
+
+
+@dataclass
+class LookCounts:
+    started: int = 0
+    settled: dict[str, int] = field(default_factory=dict)  # outcome word: count
+    aborted: dict[str, int] = field(default_factory=dict)  # reason: count
+    spent_s: float = 0.0
+
+    def summary(self) -> str:
+        parts = [f"{self.started} looks"]
+        parts += [f"{n} {what}" for what, n in sorted(self.settled.items())]
+        parts += [f"{n} aborted ({why})" for why, n in sorted(self.aborted.items())]
+        return ", ".join(parts)
+
+
+@dataclass
+class _Look:
+    candidate: Candidate
+    view: Viewpoint
+    started_s: float
+    phase_s: float
+    sent_s: float = -math.inf  # when the phase's last command went
+    asked_s: float | None = None  # when MISSION_CURRENT was asked for in GUIDED
+    seq: int | None = None  # the mission item to resume
+    best_m: float = math.inf
+    progress_s: float = 0.0
+    faced: bool = False
+    tries: int = 0
+    outcome: str | None = None  # what it settled, or why it was aborted
+
+
+Step = tuple[list[Command], list[Say]]
+
+
+class LookMachine:
+    """See the module docstring. ``step`` is called a few times a second."""
+
+    def __init__(self, settings: LooksConfig) -> None:
+        self.settings = settings
+        self.enabled = settings.enabled
+        self.switched_off = False  # the operator took over: off until switched on again
+        self.phase = Phase.IDLE
+        self.path = DrivenPath()
+        self.looked: set[int] = set()  # track IDs
+        self.counts = LookCounts()
+        self.look: _Look | None = None
+        self.last: _Look | None = None  # the last look that ended
+        self._said_not_ardupilot = False
+
+    def set_enabled(self, enabled: bool) -> None:
+        """RC_LOOK_ON or the config: switching on also ends a previous take-over."""
+        self.enabled = enabled
+        if enabled:
+            self.switched_off = False
+
+    @property
+    def expected_modes(self) -> frozenset[int]:
+        """The modes the companion may see while it drives (empty: it does not drive)."""
+        if self.phase in (Phase.IDLE, Phase.LINK_LOST):
+            return frozenset()
+        if self.phase in (Phase.GUIDED, Phase.RESUMING):
+            return frozenset({ROVER_AUTO, ROVER_GUIDED})
+        return frozenset({ROVER_GUIDED})
+
+    def step(
+        self,
+        now_s: float,
+        rover: Rover,
+        ap: AutopilotView,
+        found: Sequence[Candidate],
+        victims: dict[int, Victim],
+    ) -> Step:
+        """``found``: this moment's candidates; ``victims``: every track by track ID."""
+        if rover.ne is not None and self.phase == Phase.IDLE:
+            self.path.add(*rover.ne)
+        if self.look is None:
+            return self._idle(now_s, rover, ap, found, victims)
+        return self._active(now_s, rover, ap, self.look, victims)
+
+    # -- starting ----------------------------------------------------------------------
+
+    def _idle(
+        self,
+        now_s: float,
+        rover: Rover,
+        ap: AutopilotView,
+        found: Sequence[Candidate],
+        victims: dict[int, Victim],
+    ) -> Step:
+        s = self.settings
+        if not (self.enabled and not self.switched_off and rover.connected and found):
+            return [], []
+        if ap.heartbeat_s is not None and not ap.ardupilot_rover:
+            if self._said_not_ardupilot:
+                return [], []
+            self._said_not_ardupilot = True
+            return [], [Say("closer looks need ArduPilot Rover: not supported here", 4)]
+        here = rover.ne
+        if (
+            here is None
+            or not ap.armed
+            or ap.mode != ROVER_AUTO
+            or not _fresh(ap, now_s)
+            or self.counts.spent_s + s.look_s >= s.mission_budget_s
+        ):
+            return [], []
+        avoid = [(v.north_m, v.east_m) for v in victims.values() if v.state in _LIVE]
+        for c in found:
+            if c.track_id in self.looked or math.dist(c.ne, here) > s.max_detour_m:
+                continue
+            view = viewpoint(c.ne, list(self.path.points), avoid, here, s)
+            if view is None:
+                continue
+            self.looked.add(c.track_id)
+            self.look = _Look(c, view, now_s, now_s, sent_s=now_s)
+            self.phase = Phase.GUIDED
+            self.counts.started += 1
+            what = c.kind.value if c.victim_id == 0 else f"{c.kind.value} (victim {c.victim_id})"
+            line = f"looking closer at a {what} {compass(here, c.ne)} of here"
+            return [SetMode(ROVER_GUIDED)], [Say(line, _SEVERITY_NOTICE)]
+        return [], []
+
+    # -- during a look -----------------------------------------------------------------
+
+    def _active(
+        self, now_s: float, rover: Rover, ap: AutopilotView, look: _Look, victims: dict[int, Victim]
+    ) -> Step:
+        s = self.settings
+        if self.phase == Phase.LINK_LOST:
+            return self._link_back(now_s, rover, ap, look)
+        if not rover.connected:
+            self.phase = Phase.LINK_LOST
+            return [], [self._aborted(look, "vehicle link lost")]
+        heard = ap.heartbeat_s is not None and ap.heartbeat_s >= look.started_s
+        if heard and (not ap.armed or ap.mode not in self.expected_modes):
+            return self._taken_over(now_s, look, ap)
+        if self.phase == Phase.RESUMING:
+            return self._resuming(now_s, ap, look)
+        if not self.enabled:
+            return self._abort_and_resume(now_s, look, "looks switched off")
+        if now_s - look.started_s > s.look_budget_s:
+            return self._abort_and_resume(now_s, look, "time budget spent")
+        if self.phase == Phase.GUIDED:
+            return self._guided(now_s, ap, look)
+        outcome = settlement(look.candidate, victims.get(look.candidate.track_id))
+        if outcome is not None:
+            return self._settled(now_s, look, outcome)
+        if self.phase == Phase.DRIVING:
+            return self._driving(now_s, rover, look)
+        return self._looking(now_s, rover, look)
+
+    def _guided(self, now_s: float, ap: AutopilotView, look: _Look) -> Step:
+        ack = ap.acks.get(MAV_CMD_DO_SET_MODE)
+        acked = ack is not None and ack[1] >= look.sent_s
+        if ack is not None and acked and ack[0] != MAV_RESULT_ACCEPTED:
+            self._end(now_s)
+            return [], [self._aborted(look, "the autopilot refused GUIDED")]
+        in_guided = ap.mode == ROVER_GUIDED and (ap.heartbeat_s or -math.inf) >= look.sent_s
+        if acked and in_guided:
+            # The mission item to resume, asked for now that GUIDED has frozen it.
+            if look.asked_s is None or now_s - look.asked_s > self.settings.ack_timeout_s:
+                look.asked_s = now_s
+                return [RequestMissionCurrent()], []
+            if ap.mission_s is not None and ap.mission_s >= look.asked_s and ap.mission_seq:
+                look.seq = ap.mission_seq
+                self.phase = Phase.DRIVING
+                look.phase_s = look.progress_s = look.sent_s = now_s
+                return [GoTo(look.view.north_m, look.view.east_m)], []
+            return [], []
+        if now_s - look.sent_s > self.settings.ack_timeout_s:
+            if ap.mode == ROVER_GUIDED:  # the acknowledgement was lost, not the command
+                look.sent_s = now_s
+                return [SetMode(ROVER_GUIDED)], []
+            self._end(now_s)
+            return [], [self._aborted(look, "no answer to GUIDED")]
+        return [], []
+
+    def _driving(self, now_s: float, rover: Rover, look: _Look) -> Step:
+        here = rover.ne
+        if here is None:
+            return [], []
+        d = math.dist(here, look.view.ne)
+        if d < look.best_m - _PROGRESS_M:
+            look.best_m = d
+            look.progress_s = now_s
+        if d <= _ARRIVED_M:
+            self.phase = Phase.LOOKING
+            look.phase_s = look.sent_s = now_s
+            return [Face(look.view.yaw_rad)], []
+        if now_s - look.progress_s > self.settings.stuck_s:
+            return self._abort_and_resume(now_s, look, "stuck on the way")
+        if now_s - look.sent_s > _RESEND_S:
+            look.sent_s = now_s
+            return [GoTo(look.view.north_m, look.view.east_m)], []
+        return [], []
+
+    def _looking(self, now_s: float, rover: Rover, look: _Look) -> Step:
+        if not look.faced:
+            yaw = rover.yaw_rad
+            facing = yaw is not None and (
+                abs(math.remainder(yaw - look.view.yaw_rad, math.tau)) <= _FACED_RAD
+            )
+            if facing or now_s - look.phase_s > _TURN_MAX_S:
+                look.faced = True
+                look.phase_s = now_s
+            return [], []
+        if now_s - look.phase_s >= self.settings.look_s:
+            return self._settled(now_s, look, "still unsettled")
+        return [], []
+
+    # -- ending ------------------------------------------------------------------------
+
+    def _settled(self, now_s: float, look: _Look, outcome: str) -> Step:
+        look.outcome = outcome
+        key = outcome.split(" to ")[0]
+        self.counts.settled[key] = self.counts.settled.get(key, 0) + 1
+        cmds, _ = self._resume(now_s, look)
+        line = f"closer look: the {look.candidate.kind.value} is {outcome}; resuming the mission"
+        return cmds, [Say(line, _SEVERITY_NOTICE)]
+
+    def _aborted(self, look: _Look, reason: str) -> Say:
+        look.outcome = f"aborted: {reason}"
+        self.counts.aborted[reason] = self.counts.aborted.get(reason, 0) + 1
+        return Say(f"closer look aborted: {reason}", _SEVERITY_WARNING)
+
+    def _abort_and_resume(self, now_s: float, look: _Look, reason: str) -> Step:
+        line = self._aborted(look, reason)
+        cmds, _ = self._resume(now_s, look)
+        return cmds, [Say(f"{line.text}; resuming the mission", line.severity)]
+
+    def _resume(self, now_s: float, look: _Look) -> Step:
+        self.phase = Phase.RESUMING
+        look.phase_s = look.sent_s = now_s
+        look.tries += 1
+        cmds: list[Command] = []
+        if look.seq is not None:
+            cmds.append(SetCurrent(look.seq))
+        cmds.append(SetMode(ROVER_AUTO))
+        return cmds, []
+
+    def _resuming(self, now_s: float, ap: AutopilotView, look: _Look) -> Step:
+        ack = ap.acks.get(MAV_CMD_DO_SET_MODE)
+        auto_since = ap.mode == ROVER_AUTO and (ap.heartbeat_s or -math.inf) >= look.sent_s
+        if auto_since and ack is not None and ack[1] >= look.sent_s:
+            self._end(now_s)
+            return [], []
+        if now_s - look.sent_s <= self.settings.ack_timeout_s:
+            return [], []
+        if auto_since:  # the acknowledgement was lost, not the command
+            self._end(now_s)
+            return [], []
+        if look.tries >= _RESUME_TRIES:
+            self.switched_off = True
+            self._end(now_s)
+            line = "could not resume the mission after a closer look: the operator must"
+            return [], [Say(line, _SEVERITY_CRITICAL)]
+        if ap.mode == ROVER_GUIDED and _fresh(ap, now_s):
+            return self._resume(now_s, look)
+        return [], []
+
+    def _link_back(self, now_s: float, rover: Rover, ap: AutopilotView, look: _Look) -> Step:
+        if not rover.connected or not _fresh(ap, now_s):
+            return [], []
+        if ap.mode == ROVER_GUIDED and ap.armed:  # still ours: give the mission back
+            cmds, _ = self._resume(now_s, look)
+            return cmds, [Say("vehicle link back: resuming the mission", _SEVERITY_NOTICE)]
+        if ap.mode == ROVER_AUTO:
+            self._end(now_s)
+            return [], []
+        return self._taken_over(now_s, look, ap)
+
+    def _taken_over(self, now_s: float, look: _Look, ap: AutopilotView) -> Step:
+        reason = (
+            "vehicle disarmed" if not ap.armed else f"operator switched to {mode_name(ap.mode)}"
+        )
+        self.switched_off = True
+        line = self._aborted(look, reason)
+        self._end(now_s)
+        return [], [Say(f"{line.text}; no more looks until RC_LOOK_ON is set again", 4)]
+
+    def operator_took_over(self) -> None:
+        """A heartbeat showed a mode the companion did not ask for (the vehicle link's
+        thread saw it first): no look starts again until switched on."""
+        self.switched_off = True
+
+    def _end(self, now_s: float) -> None:
+        if self.look is not None:
+            self.counts.spent_s += now_s - self.look.started_s
+        self.last = self.look
+        self.look = None
+        self.phase = Phase.IDLE
+
+
+def _fresh(ap: AutopilotView, now_s: float) -> bool:
+    return ap.heartbeat_s is not None and now_s - ap.heartbeat_s <= _HEARTBEAT_FRESH_S

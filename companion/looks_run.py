@@ -1,0 +1,135 @@
+"""Closer looks on the live vehicle link: companion/looks.py's steps, sent and heard.
+
+``Looks`` runs on the processing thread (``tick`` after the ground's requests, a few
+times a second), which owns the tracker: it takes the candidates from the tracker's
+snapshots, the rover's position from the pose history and what the autopilot said
+from an ``AutopilotWatch`` the vehicle link's reader thread fills, and sends the
+commands (mavlink_io/guided.py) on the vehicle link. When the reader thread sees a
+heartbeat with a mode the companion did not ask for, it marks the look taken over
+at once: nothing more is sent, and the next tick ends the look and switches looks
+off (``switch_off``: RC_LOOK_ON is set to 0, which the operator sets to 1 again).
+The lines for people go through the announcer (STATUSTEXT); ``line`` is the count
+of looks and what they settled, for the status.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Protocol, assert_never
+
+from companion.config import LooksConfig
+from companion.looks import (
+    Command,
+    Face,
+    GoTo,
+    LookMachine,
+    RequestMissionCurrent,
+    Rover,
+    SetCurrent,
+    SetMode,
+    candidates,
+)
+from fusion.registry import Victim
+from mavlink_io import guided
+from mavlink_io.codec import MavMessage
+from mavlink_io.vehicle import VehicleLink
+
+log = logging.getLogger(__name__)
+
+_POSE_MAX_AGE_S = 2.0  # an older pose is no position for a look
+
+
+class Announces(Protocol):
+    def announce(self, text: str, severity: int) -> None: ...
+
+
+class Looks:
+    def __init__(
+        self,
+        settings: LooksConfig,
+        vehicle: VehicleLink,
+        announcer: Announces,
+        switch_off: Callable[[], None],
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
+    ) -> None:
+        self.machine = LookMachine(settings)
+        self._vehicle = vehicle
+        self._announcer = announcer
+        self._switch_off = switch_off
+        self._clock = clock
+        self._wall = wall
+        self._taken_over = threading.Event()  # set by the reader thread
+        self.watch = guided.AutopilotWatch(lambda: vehicle.sysid)
+        self.watch.on_foreign_mode = self._foreign_mode
+        vehicle.listen(self.watch.on_message)
+        self.line = ""  # "2 looks, 1 confirmed, ..." (replaced whole; read by the status)
+        if settings.enabled:
+            log.info("closer looks are on (RC_LOOK_ON = 1)")
+
+    def set_enabled(self, enabled: bool) -> None:
+        if enabled != self.machine.enabled or (enabled and self.machine.switched_off):
+            log.info("closer looks switched %s", "on" if enabled else "off")
+        self.machine.set_enabled(enabled)
+
+    def _foreign_mode(self, mode: int) -> None:
+        """Reader thread: the operator (or a failsafe) changed the mode mid-look."""
+        if not self._taken_over.is_set():
+            log.warning("mode %s during a closer look: letting go", guided.mode_name(mode))
+        self._taken_over.set()
+
+    def tick(self, tracked: Callable[[], Sequence[Victim]]) -> None:
+        """One step (processing thread); ``tracked``: the tracker's snapshots with the
+        tentative ones (asked for only while looks are on or one is under way)."""
+        m = self.machine
+        if not m.enabled and m.look is None:
+            return
+        victims = tracked()
+        now = self._clock()
+        if self._taken_over.is_set():
+            m.operator_took_over()
+        pose = self._vehicle.poses.latest()
+        if pose is not None and now - pose.t_mono_s <= _POSE_MAX_AGE_S:
+            rover = Rover(self._vehicle.connected, pose.north_m, pose.east_m, pose.yaw_rad)
+        else:
+            rover = Rover(self._vehicle.connected)
+        found = candidates(victims, self._wall(), m.settings) if m.look is None else []
+        by_track = {v.track_id: v for v in victims}
+        was_off = m.switched_off
+        commands, lines = m.step(now, rover, self.watch.snapshot(), found, by_track)
+        self.watch.expect(m.expected_modes)
+        if not self._taken_over.is_set():
+            for c in commands:
+                self._send(c)
+        if m.look is None:
+            self._taken_over.clear()
+        for line in lines:
+            log.info("closer look: %s", line.text)
+            self._announcer.announce(line.text, line.severity)
+        if m.counts.started:
+            self.line = m.counts.summary()
+        if m.switched_off and not was_off:
+            self._switch_off()
+
+    def _send(self, c: Command) -> None:
+        mod = self._vehicle.codec.module
+        sysid = self._vehicle.sysid
+        msg: MavMessage
+        if isinstance(c, SetMode):
+            msg = guided.set_mode(mod, sysid, c.mode)
+        elif isinstance(c, GoTo):
+            msg = guided.goto(mod, sysid, c.north_m, c.east_m)
+        elif isinstance(c, Face):
+            msg = guided.face(mod, sysid, c.yaw_rad)
+        elif isinstance(c, SetCurrent):
+            msg = guided.set_current(mod, sysid, c.seq)
+        elif isinstance(c, RequestMissionCurrent):
+            msg = guided.request_mission_current(mod, sysid)
+        else:
+            assert_never(c)
+        log.debug("closer look sends %s", c)
+        self._vehicle.send(msg)
