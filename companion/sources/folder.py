@@ -66,27 +66,38 @@ def write_frame(folder: Path, frame: Frame, ext: str = "jpg", jpeg_quality: int 
     return path
 
 
+def timed_files(
+    name: str, folder: Path, pattern: re.Pattern[str], kind: str, suffixes: str
+) -> list[tuple[int, Path]]:
+    """The files of a frames folder named ``<unix_time_us>.<suffix>`` (``pattern``'s
+    first group is the time), oldest first, with their times in microseconds. Raises
+    CameraError naming ``name`` when the folder is missing, unreadable or holds none;
+    other files are ignored and counted in the log."""
+    if not folder.is_dir():
+        raise CameraError(f"{name}: no such folder")
+    try:
+        paths = list(folder.iterdir())
+    except OSError as exc:
+        raise CameraError(f"{name}: cannot be listed: {exc.strerror or exc}") from None
+    entries: list[tuple[int, Path]] = []
+    for path in paths:
+        match = pattern.match(path.name)
+        if match and path.is_file():
+            entries.append((int(match.group(1)), path))
+    if len(entries) < len(paths):
+        ignored = len(paths) - len(entries)
+        log.info("%s: ignored %d files not named <unix_us>.%s", name, ignored, suffixes)
+    if not entries:
+        raise CameraError(f"{name}: holds no {kind} named <unix_time_us>.{suffixes}")
+    return sorted(entries)
+
+
 class FramesDirSource:
     """Replays a folder of time-stamped frames; EndOfStream after the last."""
 
     def __init__(self, folder: Path) -> None:
         self.name = f"frames:{folder}"
-        if not folder.is_dir():
-            raise CameraError(f"{self.name}: no such folder")
-        entries: list[tuple[int, Path]] = []
-        ignored = 0
-        for path in folder.iterdir():
-            match = _NAME.match(path.name)
-            if match and path.is_file():
-                entries.append((int(match.group(1)), path))
-            else:
-                ignored += 1
-        if ignored:
-            log.info("%s: ignored %d files not named <unix_us>.jpg|png", self.name, ignored)
-        if not entries:
-            raise CameraError(f"{self.name}: holds no frames named <unix_time_us>.jpg|png")
-        entries.sort()
-        self._entries = entries
+        self._entries = timed_files(self.name, folder, _NAME, "frames", "jpg|png")
         self._offset_s = mono_minus_unix_s()
         self._pos = 0
         self.frames_skipped = 0

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from companion.sources.base import CameraError, EndOfStream, mono_minus_unix_s, truncation
-from companion.sources.folder import frame_filename
+from companion.sources.folder import frame_filename, timed_files
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_raw import ZERO_C_K, ThermalJudge, not_temperatures
 
@@ -79,26 +79,7 @@ class ThermalFramesDir:
     def __init__(self, folder: Path, width_px: int, height_px: int) -> None:
         self.name = f"frames:{folder}"
         self._size = (width_px, height_px)
-        if not folder.is_dir():
-            raise CameraError(f"{self.name}: no such folder")
-        entries: list[tuple[int, Path]] = []
-        ignored = 0
-        try:
-            paths = list(folder.iterdir())
-        except OSError as exc:
-            raise CameraError(f"{self.name}: cannot be listed: {exc.strerror or exc}") from None
-        for path in paths:
-            match = _NAME.match(path.name)
-            if match and path.is_file():
-                entries.append((int(match.group(1)), path))
-            else:
-                ignored += 1
-        if ignored:
-            log.info("%s: ignored %d files not named <unix_us>.png", self.name, ignored)
-        if not entries:
-            raise CameraError(f"{self.name}: holds no thermal frames named <unix_time_us>.png")
-        entries.sort()
-        self._entries = entries
+        self._entries = timed_files(self.name, folder, _NAME, "thermal frames", "png")
         self._offset_s = mono_minus_unix_s()
         self._pos = 0
         self._files_skipped = 0
