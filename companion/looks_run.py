@@ -90,6 +90,7 @@ class Looks:
             return
         victims = tracked()
         now = self._clock()
+        was_off = m.switched_off
         if self._taken_over.is_set():
             m.operator_took_over()
         pose = self._vehicle.poses.latest()
@@ -99,7 +100,6 @@ class Looks:
             rover = Rover(self._vehicle.connected)
         found = candidates(victims, self._wall(), m.settings) if m.look is None else []
         by_track = {v.track_id: v for v in victims}
-        was_off = m.switched_off
         commands, lines = m.step(now, rover, self.watch.snapshot(), found, by_track)
         self.watch.expect(m.expected_modes)
         if not self._taken_over.is_set():
