@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
 # make pi-check: the README's set-up and the perception/replay results on aarch64, shown.
 #
-# Builds once (cached in $PI_ROOT) a Debian bookworm arm64 root with debootstrap and runs
-# it under qemu-user (Debian's qemu-user-static and binfmt-support). Each run then copies
-# the repository's HEAD into it (git archive: a clean copy, no venv, no build files),
-# runs the README's set-up there (`make .venv/.installed`: system packages, venv, pip,
-# the person models from npm), and runs, in the arm64 root and on this host alike,
+# Builds once (cached in $PI_CACHE/pi-root) a Debian bookworm arm64 root with debootstrap
+# and runs it under qemu-user (Debian's qemu-user-static and binfmt-support). Each run
+# starts from a fresh copy of that root ($PI_CACHE/pi-run; only the downloaded .deb
+# files and pip's cache are kept between runs), copies the repository's HEAD into it
+# (git archive: a clean copy, no venv, no build files), runs the README's set-up there
+# (`make .venv/.installed`: system packages, venv, pip, the person models from npm),
+# and runs, in the arm64 root and on this host alike,
 # `rescue-companion detect --json` on the real_falls frames and a replay of a short
 # recorded simulated mission. tools/pi_check.py compares the two and fails (exit 1)
 # when people, boxes, victims, urgencies or positions differ beyond its tolerances.
@@ -15,7 +17,9 @@
 set -euo pipefail
 
 REPO=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-PI_ROOT=${PI_ROOT:-/var/cache/rescue-companion/pi-root}
+PI_CACHE=${PI_CACHE:-/var/cache/rescue-companion}
+BASE=$PI_CACHE/pi-root  # the debootstrapped root, never run in
+PI_ROOT=$PI_CACHE/pi-run  # this run's copy of it
 PI_MIRROR=${PI_MIRROR:-http://deb.debian.org/debian}
 DATA=${PI_CHECK_DATA:-$REPO/../shared/data/images/real_falls}
 OUT=${PI_CHECK_OUT:-$REPO/build/pi-check}
@@ -57,24 +61,41 @@ binfmt() {
 }
 
 build_root() {
-    local stamp=$PI_ROOT/.pi-check-root
+    local stamp=$BASE/.pi-check-root
     if [ -e "$stamp" ]; then
-        say "arm64 root cached in $PI_ROOT"
+        say "arm64 root cached in $BASE; a fresh copy of it in $PI_ROOT"
         return
     fi
-    say "building a Debian bookworm arm64 root in $PI_ROOT (once; about 15 minutes)"
-    rm -rf "$PI_ROOT"
-    mkdir -p "$PI_ROOT"
+    say "building a Debian bookworm arm64 root in $BASE (once; about 15 minutes)"
+    rm -rf "$BASE"
+    mkdir -p "$BASE"
     # What the README asks of a fresh machine (python3, make); the set-up installs the rest.
     debootstrap --foreign --arch=arm64 --variant=minbase \
-        --include=python3,make,ca-certificates bookworm "$PI_ROOT" "$PI_MIRROR"
-    install -m 0755 /usr/bin/qemu-aarch64-static "$PI_ROOT/usr/bin/"
-    "${NICE[@]}" chroot "$PI_ROOT" /debootstrap/debootstrap --second-stage
-    cat >"$PI_ROOT/etc/apt/sources.list" <<SOURCES
+        --include=python3,make,ca-certificates bookworm "$BASE" "$PI_MIRROR"
+    install -m 0755 /usr/bin/qemu-aarch64-static "$BASE/usr/bin/"
+    "${NICE[@]}" chroot "$BASE" /debootstrap/debootstrap --second-stage
+    cat >"$BASE/etc/apt/sources.list" <<SOURCES
 deb $PI_MIRROR bookworm main
 deb $PI_MIRROR bookworm-updates main
 SOURCES
     touch "$stamp"
+}
+
+# A site's own certificate authorities (a TLS proxy in front of the registries, as on
+# this project's machines) are trusted in the root as on the host: Debian's way
+# (/usr/local/share/ca-certificates), and pip is told to use that bundle (it carries
+# its own otherwise; the host's pip.conf says the same).
+trust_local_cas() {
+    local crt found=
+    for crt in /usr/local/share/ca-certificates/*.crt; do
+        [ -e "$crt" ] || continue
+        install -D -m 0644 "$crt" "$PI_ROOT/usr/local/share/ca-certificates/$(basename "$crt")"
+        found=1
+    done
+    if [ -n "$found" ]; then
+        in_root update-ca-certificates >/dev/null 2>&1 \
+            || die "update-ca-certificates failed in the arm64 root"
+    fi
 }
 
 MOUNTED=()
@@ -88,11 +109,11 @@ mount_in_root() {  # SOURCE TARGET [ro]
 }
 unmount_leftovers() {  # a run killed before its trap: never delete through a bind mount
     local m
-    for m in $(awk -v root="$PI_ROOT/" 'index($2, root) == 1 { print $2 }' /proc/mounts | sort -r); do
+    for m in $(awk -v root="$PI_CACHE/" 'index($2, root) == 1 { print $2 }' /proc/mounts | sort -r); do
         umount -l "$m"
     done
-    if awk -v root="$PI_ROOT/" 'index($2, root) == 1 { found = 1 } END { exit !found }' /proc/mounts; then
-        die "something is still mounted under $PI_ROOT; unmount it by hand"
+    if awk -v root="$PI_CACHE/" 'index($2, root) == 1 { found = 1 } END { exit !found }' /proc/mounts; then
+        die "something is still mounted under $PI_CACHE; unmount it by hand"
     fi
 }
 unmount_all() {
@@ -108,7 +129,8 @@ unmount_all() {
 PI_CPU=${PI_CPU:-cortex-a76}
 in_root() {  # a command in the arm64 root, at the lowest priority, with a clean environment
     QEMU_CPU=$PI_CPU "${NICE[@]}" chroot "$PI_ROOT" /usr/bin/env -i QEMU_CPU="$PI_CPU" \
-        HOME=/root LANG=C.UTF-8 PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
+        HOME=/root LANG=C.UTF-8 PIP_CERT=/etc/ssl/certs/ca-certificates.crt \
+        PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
         "$@"
 }
 
@@ -134,7 +156,7 @@ host_python() {
 main() {
     if [ "$(id -u)" -ne 0 ]; then
         command -v sudo >/dev/null 2>&1 || die "needs root (debootstrap, chroot, binfmt_misc) and there is no sudo"
-        exec sudo --preserve-env=PI_ROOT,PI_MIRROR,PI_CHECK_DATA,PI_CHECK_OUT,PI_CHECK_PRESET,PI_CHECK_MISSION_S,PI_CPU \
+        exec sudo --preserve-env=PI_MIRROR,PI_CHECK_DATA,PI_CHECK_OUT,PI_CHECK_PRESET,PI_CHECK_MISSION_S,PI_CPU,PI_CACHE \
             bash "${BASH_SOURCE[0]}" "$@"
     fi
     [ -d "$DATA/frames" ] || die "no real_falls frames at $DATA/frames (set PI_CHECK_DATA)"
@@ -152,11 +174,18 @@ main() {
     mkdir -p "$OUT/host" "$OUT/pi" "$OUT/src"
     git -C "$REPO" archive HEAD | tar -x -C "$OUT/src"
 
+    say "a fresh copy of the arm64 root in $PI_ROOT"
+    rm -rf "$PI_ROOT"
+    cp -a "$BASE" "$PI_ROOT"
+    mkdir -p "$PI_CACHE/apt-archives/partial" "$PI_CACHE/pip"
     trap unmount_all EXIT
+    mount_in_root "$PI_CACHE/apt-archives" /var/cache/apt/archives
+    mount_in_root "$PI_CACHE/pip" /root/.cache/pip
     mount_in_root /proc /proc
     mount_in_root /sys /sys
     mount_in_root /dev /dev
     cp -L /etc/resolv.conf "$PI_ROOT/etc/resolv.conf"
+    trust_local_cas
 
     say "copying HEAD into the arm64 root's $SRC_IN_ROOT"
     rm -rf "${PI_ROOT:?}$SRC_IN_ROOT"
