@@ -121,6 +121,11 @@ class Processing:
         self._count_victims()  # the restored ones, before any thread runs
 
     @property
+    def looks_line(self) -> str:
+        """The closer looks made and what they settled ("" before the first)."""
+        return self._looks.line if self._looks is not None else ""
+
+    @property
     def counters(self) -> PipelineCounters:
         """The pipeline's counters (processing adds to them; the reporter reads them)."""
         return self._pipeline.counters

@@ -112,9 +112,10 @@ class Status:
             else f"waiting for the autopilot on {self._config.vehicle.url}"
         )
         camera = "ok" if camera_ok else "lost"
+        looks = f", {line}" if (line := self._processing.looks_line) else ""
         self._notifier.status(
             f"{link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
-            f"{confirmed} victims, {pending} unacknowledged"
+            f"{confirmed} victims, {pending} unacknowledged{looks}"
         )
 
     def check_health(self, now: float) -> None:
@@ -179,3 +180,5 @@ class Status:
             self._picture_sender.counters.delivered,
             self._picture_sender.pending,
         )
+        if line := self._processing.looks_line:
+            log.info("closer looks: %s", line)
