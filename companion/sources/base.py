@@ -99,7 +99,8 @@ def mono_minus_unix_s() -> float:
     return time.monotonic() - time.time()
 
 
-P = TypeVar("P")
+P = TypeVar("P")  # what the grabber hands over (bytes, an array)
+F = TypeVar("F")  # what read() returns (a Frame, a ThermalFrame)
 
 
 @dataclass
@@ -110,13 +111,15 @@ class _Grabbed(Generic[P]):
     index: int
 
 
-class ThreadedSource(ABC, Generic[P]):
+class ThreadedSource(ABC, Generic[P, F]):
     """A live camera: a thread grabs, read() waits for the newest frame.
 
     Subclasses open the device in their constructor (raising CameraError), then call
     ``_start()``; they implement ``_grab`` (blocking, raises CameraError when the
-    device fails), ``_decode`` (payload -> BGR image, or None for a corrupt frame)
-    and ``_release``. ``_interrupt`` may unblock a pending ``_grab`` on close.
+    device fails), ``_decode`` (payload -> an array, or None for a corrupt frame),
+    ``_frame`` (that array -> what read() returns, or None for a frame that is no
+    evidence) and ``_release``. ``_interrupt`` may unblock a pending ``_grab`` on
+    close. ``ColourSource`` is the colour cameras' (BGR images, ``Frame``s).
     """
 
     name: str
@@ -143,6 +146,9 @@ class ThreadedSource(ABC, Generic[P]):
 
     @abstractmethod
     def _decode(self, payload: P) -> np.ndarray | None: ...
+
+    @abstractmethod
+    def _frame(self, decoded: np.ndarray, grabbed: _Grabbed[P]) -> F | None: ...
 
     @abstractmethod
     def _release(self) -> None: ...
@@ -179,8 +185,7 @@ class ThreadedSource(ABC, Generic[P]):
     def _take(self, deadline: float, timeout_s: float) -> _Grabbed[P]:
         """The newest grabbed payload, waiting until ``deadline`` (monotonic; the read's
         ``timeout_s`` names it in the message): CameraTimeout when none comes,
-        CameraError once closed, the grabber's error when it failed. Subclasses whose
-        frames are not colour ``Frame``s (the thermal cameras) read through it too."""
+        CameraError once closed, the grabber's error when it failed."""
         with self._cond:
             while self._latest is None and self._error is None and not self._closed:
                 remaining = deadline - time.monotonic()
@@ -196,15 +201,18 @@ class ThreadedSource(ABC, Generic[P]):
             self._latest = None
             return grabbed
 
-    def read(self, timeout_s: float) -> Frame:
+    def read(self, timeout_s: float) -> F:
         deadline = time.monotonic() + max(0.0, timeout_s)
         while True:
             grabbed = self._take(deadline, timeout_s)
-            image = self._decode(grabbed.payload)
-            if image is not None:
-                return Frame(image, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)
-            self.frames_corrupt += 1
-            log.warning("%s: frame %d could not be decoded; skipped", self.name, grabbed.index)
+            decoded = self._decode(grabbed.payload)
+            if decoded is None:
+                self.frames_corrupt += 1
+                log.warning("%s: frame %d could not be decoded; skipped", self.name, grabbed.index)
+                continue
+            frame = self._frame(decoded, grabbed)
+            if frame is not None:
+                return frame
 
     def close(self) -> None:
         with self._cond:
@@ -222,8 +230,15 @@ class ThreadedSource(ABC, Generic[P]):
         elif thread is None:
             self._release()
 
-    def __enter__(self) -> ThreadedSource[P]:
+    def __enter__(self) -> ThreadedSource[P, F]:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class ColourSource(ThreadedSource[P, Frame]):
+    """A live colour camera: ``_decode`` gives a BGR image, read() a ``Frame``."""
+
+    def _frame(self, decoded: np.ndarray, grabbed: _Grabbed[P]) -> Frame:
+        return Frame(decoded, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, EndOfStream, Frame, ThreadedSource
+from companion.sources.base import CameraError, ColourSource, EndOfStream, Frame
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ def _as_bgr(image: np.ndarray) -> np.ndarray:
     return image
 
 
-class LiveCaptureSource(ThreadedSource[np.ndarray]):
+class LiveCaptureSource(ColourSource[np.ndarray]):
     """A live camera behind cv2.VideoCapture, grabbed on a background thread."""
 
     def __init__(

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.sources.base import CameraError, ThreadedSource
+from companion.sources.base import CameraError, ColourSource
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +28,7 @@ _NEEDS = (
 )
 
 
-class Picamera2Source(ThreadedSource[np.ndarray]):
+class Picamera2Source(ColourSource[np.ndarray]):
     def __init__(self, width_px: int, height_px: int, fps: float) -> None:
         super().__init__("picamera2")
         try:

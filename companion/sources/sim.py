@@ -18,7 +18,15 @@ import struct
 
 import numpy as np
 
-from companion.sources.base import CameraError, ThreadedSource, decode_image, mono_minus_unix_s
+from companion.sources.base import (
+    CameraError,
+    F,
+    Frame,
+    ThreadedSource,
+    _Grabbed,
+    decode_image,
+    mono_minus_unix_s,
+)
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 5600
@@ -28,8 +36,8 @@ _STAMP = struct.Struct(">Q")
 _CONNECT_TIMEOUT_S = 2.0
 
 
-class SimSource(ThreadedSource[bytes]):
-    """Frames from the scenarios camera server at host:port."""
+class SimStream(ThreadedSource[bytes, F]):
+    """The simulator's frame stream at host:port (colour JPEGs or thermal PNGs)."""
 
     def __init__(self, host: str, port: int) -> None:
         super().__init__(f"sim:{host}:{port}")
@@ -63,15 +71,22 @@ class SimSource(ThreadedSource[bytes]):
         t_unix_s = t_us / 1e6
         return body[_STAMP.size :], t_unix_s + mono_minus_unix_s(), t_unix_s
 
-    def _decode(self, payload: bytes) -> np.ndarray | None:
-        return decode_image(payload)
-
     def _interrupt(self) -> None:
         with contextlib.suppress(OSError):  # not connected any more: nothing to unblock
             self._sock.shutdown(socket.SHUT_RDWR)
 
     def _release(self) -> None:
         self._sock.close()
+
+
+class SimSource(SimStream[Frame]):
+    """Colour frames from the scenarios camera server at host:port."""
+
+    def _decode(self, payload: bytes) -> np.ndarray | None:
+        return decode_image(payload)
+
+    def _frame(self, decoded: np.ndarray, grabbed: _Grabbed[bytes]) -> Frame:
+        return Frame(decoded, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)
 
 
 def encode_sim_frame(jpeg: bytes, t_unix_s: float) -> bytes:

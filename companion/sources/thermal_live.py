@@ -24,7 +24,7 @@ from typing import Any, Literal, Protocol
 import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, ThreadedSource
+from companion.sources.base import CameraError, ThreadedSource, _Grabbed
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_raw import (
     GIVE_UP_AFTER_S,
@@ -89,7 +89,7 @@ def _fourcc_text(value: float) -> str:
     return "".join(chr((number >> (8 * i)) & 0xFF) for i in range(4))
 
 
-class ThermalCaptureSource(ThreadedSource[np.ndarray]):
+class ThermalCaptureSource(ThreadedSource[np.ndarray, ThermalFrame]):
     """A Lepton (``kind = "lepton"``) or InfiRay (``"infiray"``) on a V4L2 device.
 
     ``capture`` makes the VideoCapture (a pseudo-device in tests). Its ``_decode``
@@ -174,12 +174,8 @@ class ThermalCaptureSource(ThreadedSource[np.ndarray]):
     def _release(self) -> None:
         self._cap.release()
 
-    # ThreadedSource.read is typed for colour Frames; this one returns ThermalFrames
-    # and waits for the newest grabbed frame the same way (ThreadedSource._take).
-    def read(self, timeout_s: float) -> ThermalFrame:  # type: ignore[override]
-        deadline = time.monotonic() + max(0.0, timeout_s)
-        while True:
-            grabbed = self._take(deadline, timeout_s)
-            temps_c = self._judge.judge(self._decode(grabbed.payload), grabbed.t_mono_s)
-            if temps_c is not None:
-                return ThermalFrame(temps_c, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)
+    def _frame(self, decoded: np.ndarray, grabbed: _Grabbed[np.ndarray]) -> ThermalFrame | None:
+        temps_c = self._judge.judge(decoded, grabbed.t_mono_s)
+        if temps_c is None:
+            return None  # not evidence (the judge said why, once)
+        return ThermalFrame(temps_c, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)

@@ -17,21 +17,16 @@ skipped by ``ThermalJudge`` as a Lepton's are, and fail the camera when they las
 
 from __future__ import annotations
 
-import logging
-import time
-
 import cv2
 import numpy as np
 
-from companion.sources.base import CameraError, truncation
-from companion.sources.sim import SimSource
+from companion.sources.base import CameraError, _Grabbed, truncation
+from companion.sources.sim import SimStream
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_raw import GIVE_UP_AFTER_S, ThermalJudge, not_temperatures
 
-log = logging.getLogger(__name__)
 
-
-class ThermalSimSource(SimSource):
+class ThermalSimSource(SimStream[ThermalFrame]):
     """Thermal frames from the simulator at host:port; ``read`` returns ThermalFrames."""
 
     def __init__(
@@ -73,19 +68,8 @@ class ThermalSimSource(SimSource):
         kelvin: np.ndarray = words.astype(np.float32) / np.float32(100.0)
         return kelvin
 
-    # ThreadedSource.read is typed for colour Frames; this one returns ThermalFrames
-    # and waits for the newest grabbed frame the same way (ThreadedSource._take).
-    def read(self, timeout_s: float) -> ThermalFrame:  # type: ignore[override]
-        deadline = time.monotonic() + max(0.0, timeout_s)
-        while True:
-            grabbed = self._take(deadline, timeout_s)
-            kelvin = self._decode(grabbed.payload)
-            if kelvin is None:
-                self.frames_corrupt += 1
-                log.warning(
-                    "%s: frame %d does not decode as a PNG; skipped", self.name, grabbed.index
-                )
-                continue
-            temps_c = self._judge.judge(kelvin, grabbed.t_mono_s)
-            if temps_c is not None:
-                return ThermalFrame(temps_c, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)
+    def _frame(self, decoded: np.ndarray, grabbed: _Grabbed[bytes]) -> ThermalFrame | None:
+        temps_c = self._judge.judge(decoded, grabbed.t_mono_s)
+        if temps_c is None:
+            return None  # not evidence (the judge said why, once)
+        return ThermalFrame(temps_c, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)
