@@ -93,6 +93,7 @@ class CoverageSender:
         self._pending: OrderedDict[int, _Piece] = OrderedDict()  # by seq, oldest first
         self._to_version = 0  # of the delta on its way
         self._next_build_s = clock()
+        self._built_s = -self.cfg.period_s  # when the last delta was taken
         self._capacity = 2.0 * _PIECE_OVERHEAD + 2.0 * coverage.DATA_BYTES  # about two pieces
         self._tokens = self._capacity
         self._last_s = clock()
@@ -108,6 +109,7 @@ class CoverageSender:
         return self._seq
 
     def _build(self, now: float) -> None:
+        self._built_s = now
         self._next_build_s = now + self.cfg.period_s
         if self._grid.version <= self.acked_version:
             return
@@ -168,7 +170,9 @@ class CoverageSender:
     def _delivered(self, now: float) -> None:
         self.acked_version = max(self.acked_version, self._to_version)
         self.counters.delivered += 1
-        self._next_build_s = now + self.cfg.period_s
+        # The period counts from the last delta's start: a link slower than the map
+        # changes sends the next one at once, not after an idle period.
+        self._next_build_s = max(now, self._built_s + self.cfg.period_s)
         self._on_delivered(self.acked_version)
 
     def seconds_until_due(self) -> float:
