@@ -86,15 +86,19 @@ class Looks:
         """One step (processing thread); ``tracked``: the tracker's snapshots with the
         tentative ones (asked for only while looks are on or one is under way)."""
         m = self.machine
+        now = self._clock()
+        pose = self._vehicle.poses.latest()
+        if pose is not None and now - pose.t_mono_s > _POSE_MAX_AGE_S:
+            pose = None
         if not m.enabled and m.look is None:
+            if pose is not None:  # the path driven is known free, for later looks
+                m.path.add(pose.north_m, pose.east_m)
             return
         victims = tracked()
-        now = self._clock()
         was_off = m.switched_off
         if self._taken_over.is_set():
             m.operator_took_over()
-        pose = self._vehicle.poses.latest()
-        if pose is not None and now - pose.t_mono_s <= _POSE_MAX_AGE_S:
+        if pose is not None:
             rover = Rover(self._vehicle.connected, pose.north_m, pose.east_m, pose.yaw_rad)
         else:
             rover = Rover(self._vehicle.connected)
