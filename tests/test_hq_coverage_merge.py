@@ -4,6 +4,7 @@ one frame, kept in the registry across restarts; its unsearched places and GeoJS
 from __future__ import annotations
 
 import json
+import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +17,7 @@ from fusion.types import GlobalOrigin
 from hq import coverage
 from hq.merge import Origins
 from hq.registry import Registry
+from hq.registry_file import SCHEMA_VERSION
 
 ORIGIN = GlobalOrigin(47.397742, 8.545594, 488.0)
 
@@ -96,3 +98,23 @@ def test_rescue_hq_export_writes_the_grid(tmp_path: Path) -> None:
         assert classes == ["glanced at", "looked at", "searched well"]
     lon, lat = doc["features"][0]["geometry"]["coordinates"][0][0]
     assert lat == pytest.approx(47.4, abs=1e-4) and lon == pytest.approx(8.5, abs=1e-4)
+
+
+def test_a_version_4_registry_gains_the_coverage_table_and_keeps_its_pictures(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "v4.sqlite"
+    with Registry(path) as reg:
+        assert reg.store_picture(1, 2, 3, b"\xff\xd8 jpeg \xff\xd9", 0.0)
+    raw = sqlite3.connect(path, isolation_level=None)
+    raw.execute("DROP TABLE coverage")  # what version 4 wrote
+    raw.execute("UPDATE meta SET value='4' WHERE key='schema_version'")
+    raw.close()
+    with Registry(path) as reg:
+        reg.store_coverage(1, [(0, 0, 99)])
+        assert reg.coverage() == {1: [(0, 0, 99)]}
+        assert reg.picture(1, 2) == b"\xff\xd8 jpeg \xff\xd9"
+    raw = sqlite3.connect(path, isolation_level=None)
+    version = raw.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0]
+    raw.close()
+    assert version == str(SCHEMA_VERSION)
