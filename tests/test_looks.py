@@ -286,3 +286,61 @@ def test_an_operator_mode_mid_look_ends_it_at_once_and_looks_stay_off() -> None:
     assert m.step(103.0, rover, _ap(103.0, ROVER_AUTO), found, victims)[0] == [
         SetMode(ROVER_GUIDED)
     ]
+
+
+# -- the safety rules, over any sequence of what the autopilot says -------------------------
+
+_OTHER_MODES = [ROVER_MANUAL, ROVER_HOLD, ROVER_RTL, ROVER_SMART_RTL, ROVER_AUTO, ROVER_GUIDED]
+_event = st.tuples(
+    st.floats(0.05, 3.0),  # time to the next step
+    st.sampled_from(["obeys"] * 6 + ["silent", "operator", "disarm", "link down", "refuse"]),
+    st.sampled_from(_OTHER_MODES),  # the operator's mode
+    st.booleans(),  # the rover has reached the viewpoint
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(_event, min_size=1, max_size=60))
+def test_the_operator_always_wins(events: list[tuple[float, str, int, bool]]) -> None:
+    """An autopilot that mostly obeys, and an operator, a link and a vehicle that may
+    do anything between two steps: no command while the autopilot shows a mode other
+    than AUTO or GUIDED, or disarmed; GUIDED is asked only of an armed AUTO; after a
+    look the operator ended, nothing is sent again (until RC_LOOK_ON is set again)."""
+    m, victims = _machine_with_path()
+    found = candidates(victims.values(), 10.0, S)
+    now, hb_s, mode, armed, connected = 100.0, 100.0, ROVER_AUTO, True, True
+    acks: dict[int, tuple[int, float]] = {}
+    mission: tuple[int | None, float | None] = (None, None)
+    last: list[object] = []
+    taken_over = False
+    for dt, what, operator_mode, arrived in events:
+        now += dt
+        connected = what != "link down"
+        if what == "operator":
+            hb_s, mode = now, operator_mode
+        elif what == "disarm":
+            hb_s, armed = now, False
+        elif what in ("obeys", "refuse"):
+            hb_s = now
+            for c in last:  # the autopilot answers the last step's commands
+                if isinstance(c, SetMode):
+                    acks = {MAV_CMD_DO_SET_MODE: (0 if what == "obeys" else 4, now)}
+                    mode = c.mode if what == "obeys" else mode
+                if isinstance(c, RequestMissionCurrent):
+                    mission = (5, now)
+        ap = _ap(hb_s, mode, armed=armed, acks=acks, mission_seq=mission[0], mission_s=mission[1])
+        view = m.look.view if m.look is not None else None
+        ne = view.ne if arrived and view is not None else (0.0, 5.5)
+        idle = m.phase == Phase.IDLE
+        cmds, says = m.step(now, Rover(connected, ne[0], ne[1], 0.0), ap, found, victims)
+        if mode not in (ROVER_AUTO, ROVER_GUIDED) or not armed:
+            assert cmds == [], (mode, armed, cmds)
+        if idle and cmds:
+            assert cmds == [SetMode(ROVER_GUIDED)]
+            assert mode == ROVER_AUTO and armed and connected and now - hb_s <= 1.5
+        if taken_over:
+            assert cmds == []
+        if any("operator switched" in s.text or "disarmed" in s.text for s in says):
+            taken_over = True
+            assert m.switched_off
+        last = list(cmds)
