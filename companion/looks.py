@@ -263,7 +263,7 @@ class LookCounts:
     spent_s: float = 0.0
 
     def summary(self) -> str:
-        parts = [f"{self.started} looks"]
+        parts = [f"{self.started} look{'' if self.started == 1 else 's'}"]
         parts += [f"{n} {what}" for what, n in sorted(self.settled.items())]
         parts += [f"{n} aborted ({why})" for why, n in sorted(self.aborted.items())]
         return ", ".join(parts)

@@ -72,9 +72,11 @@ class Looks:
             log.info("closer looks are on (RC_LOOK_ON = 1)")
 
     def set_enabled(self, enabled: bool) -> None:
-        if enabled != self.machine.enabled or (enabled and self.machine.switched_off):
-            log.info("closer looks switched %s", "on" if enabled else "off")
-        self.machine.set_enabled(enabled)
+        """RC_LOOK_ON changed (or another parameter: then nothing changes here)."""
+        m = self.machine
+        if enabled != m.enabled or (enabled and m.switched_off):
+            self._announcer.announce(f"closer looks {'on' if enabled else 'off'}", 6)
+        m.set_enabled(enabled)
 
     def _foreign_mode(self, mode: int) -> None:
         """Reader thread: the operator (or a failsafe) changed the mode mid-look."""

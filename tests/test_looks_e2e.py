@@ -132,7 +132,7 @@ def test_a_look_settles_a_candidate_and_the_mission_resumes_at_its_item(rig: Rig
     victims = rig.tracker.victims()
     assert [v.state for v in victims] == [TrackState.CONFIRMED]
     assert rig.looks.machine.counts.settled == {"confirmed": 1}
-    assert "1 looks, 1 confirmed" in rig.looks.line
+    assert rig.looks.line == "1 look, 1 confirmed"
     assert any(
         line.startswith("R1 looking closer at a possible victim") and line.endswith("of here")
         for line in rig.lines
@@ -165,6 +165,11 @@ def test_the_operator_switching_to_manual_mid_look_ends_it_and_looks_stay_off(
     assert rig.rover.mode() == MANUAL
     assert rig.looks.machine.counts.started == 1
     assert rig.looks.machine.phase == Phase.IDLE
+    # The operator sets RC_LOOK_ON again and gives the rover back to its mission.
+    rig.looks.set_enabled(True)
+    rig.rover.operator_sets_mode(AUTO)
+    rig.run_until(lambda: rig.looks.machine.counts.started == 2, 10.0, None)
+    assert "R1 closer looks on" in rig.lines
 
 
 def test_link_loss_mid_look_aborts_and_the_mission_resumes_when_it_is_back(rig: Rig) -> None:
@@ -200,4 +205,4 @@ def test_with_looks_off_nothing_happens(rig: Rig) -> None:
     assert rig.rover.mode() == AUTO
     assert rig.looks.machine.counts.started == 0
     assert [v.state for v in rig.tracker.victims(include_tentative=True)] == [TrackState.TENTATIVE]
-    assert rig.lines == []
+    assert rig.lines == ["R1 closer looks off"]
