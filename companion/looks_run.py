@@ -114,7 +114,7 @@ class Looks:
         if m.look is None:
             self._taken_over.clear()
         for line in lines:
-            log.info("closer look: %s", line.text)
+            log.info("closer looks: %s", line.text)
             self._announcer.announce(line.text, line.severity)
         if m.counts.started:
             self.line = m.counts.summary()
