@@ -24,8 +24,10 @@ in the water is found (its eyes and muzzle read 27 °C, as his head does: an ani
 cannot be told from a person by temperature). wm03: a duck's head reads 23 °C over
 9 °C water, as the street's faces at night read 22-23 °C: found. wm13: a bowl of
 water at 35 °C, person-sized, at skin temperature and not flat: found.
-wm10: a 34 °C object cut by the frame's top edge (three rows in view) at skin
-temperature: found; on a rover those rows see no floor and it would be rejected.
+wm10 (until 2026-11-29): a 34 °C object cut by the frame's top edge (three rows
+in view) at skin temperature was found; a find cut by a photo's edge that reaches
+less than 2 % of the picture into it (``photo_min_cut_share``) is now a sliver of
+something beyond it and is not judged (on a rover those rows see no floor anyway).
 """
 
 from __future__ import annotations

@@ -254,6 +254,8 @@ class ThermalDetector:
             key = _floor_key(geometry, u, v)
             in_metres = key is not None
         else:
+            if (inward := _cut_sliver_px(box, t.shape, p.photo_min_cut_share)) is not None:
+                return reject(f"cut by the photo's edge, {inward} px in view: a sliver")
             expected = p.photo_body_share * t.size
             like_m2 = area_px / expected * BODY_AREA_M2  # the body prior's floor area
             if like_m2 < p.min_area_m2:
@@ -295,6 +297,22 @@ class ThermalDetector:
             seen_share_max=PART_SHARE_MAX if part else None,
         )
         result.finds.append(ThermalFind(det, peak, mean, area_m2))
+
+
+def _cut_sliver_px(
+    box: tuple[int, int, int, int], shape: tuple[int, ...], min_share: float
+) -> int | None:
+    """How far (px) a region cut by the frame's edge reaches into it, when that is
+    under ``min_share`` of the frame across that edge; None otherwise."""
+    x, y, w, h = box
+    height_px, width_px = shape[:2]
+    for cut, inward, across in (
+        (y <= 0 or y + h >= height_px, h, height_px),
+        (x <= 0 or x + w >= width_px, w, width_px),
+    ):
+        if cut and inward < min_share * across:
+            return inward
+    return None
 
 
 def _box(stat: np.ndarray) -> tuple[int, int, int, int]:

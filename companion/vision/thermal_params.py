@@ -47,6 +47,10 @@ class ThermalDetectorParams:
     # frame (a Lepton's 57° at about 3 m), and the merge gap is this share of its width.
     photo_body_share: float = 0.06
     photo_merge_gap_share: float = 0.06
+    # ... and a find cut by the photo's edge that reaches less than this share of its
+    # height (or width) into it is a sliver of something beyond the picture: its size
+    # and warmth say nothing of what it is.
+    photo_min_cut_share: float = 0.02
     # Warm clusters smaller than this are sensor noise, not evidence.
     min_blob_px: int = 3
     # Over frames: a find whose excess over ambient falls at least fade_k_per_s,
@@ -117,6 +121,7 @@ class ThermalDetectorParams:
             "min_floor_share",
             "photo_body_share",
             "photo_merge_gap_share",
+            "photo_min_cut_share",
         ):
             if getattr(self, name) > 1.0:
                 raise ValueError(f"{name} = {getattr(self, name)}: a share, must be <= 1")
