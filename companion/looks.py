@@ -9,12 +9,14 @@ Pure decision logic, no I/O (the adapter is companion/looks_run.py):
   the thermal camera has seen.
 - ``viewpoint``: a point ``view_min_m``..``view_max_m`` from the candidate, at most
   ``beside_path_m`` from the path already driven (known free), never within
-  ``clearance_m`` of any victim or candidate, the nearest such point to the rover;
-  the heading faces the candidate.
+  ``clearance_m`` of any victim or candidate, the nearest such point to the rover
+  whose straight leg from the rover is known free (``known_free``: beside the path
+  driven all along, clear of everyone); the heading faces the candidate.
 - ``settlement``: what a look settled, comparing the candidate before with its track
   after (confirmed, rejected, urgency changed, seen in colour), or None.
-- ``LookMachine``: idle -> guided (GUIDED asked) -> driving -> looking -> resuming
-  (the interrupted mission item, then AUTO) -> idle. ``step`` takes what the
+- ``LookMachine``: idle -> guided (GUIDED asked) -> driving -> looking -> returning
+  (to where the route was left, the way it came) -> resuming (the interrupted
+  mission item, then AUTO) -> idle. ``step`` takes what the
   autopilot last said (``mavlink_io.guided.AutopilotView``) and returns the commands
   to send and the lines to announce. Safety: a look starts only when looks are on,
   the link is up, the vehicle is an ArduPilot Rover, armed and in AUTO, and the
@@ -31,6 +33,8 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
+
+import numpy as np
 
 from companion.config import LooksConfig
 from fusion.registry import Victim
@@ -163,9 +167,10 @@ def viewpoint(
     rover: PointNE,
     settings: LooksConfig,
 ) -> Viewpoint | None:
-    """See the module docstring; None when no driven point gives one."""
+    """See the module docstring; None when no driven point gives one whose straight
+    leg from the rover is known free (``known_free``)."""
     lo, hi, beside = settings.view_min_m, settings.view_max_m, settings.beside_path_m
-    best: tuple[float, PointNE] | None = None
+    options: list[tuple[float, PointNE]] = []
     for p in driven:
         d = math.dist(p, target)
         if d < 1e-6 or not lo - beside <= d <= hi + beside:
@@ -176,13 +181,38 @@ def viewpoint(
         q = (target[0] + (p[0] - target[0]) * s, target[1] + (p[1] - target[1]) * s)
         if any(math.dist(q, a) < settings.clearance_m for a in avoid):
             continue
-        cost = math.dist(q, rover)
-        if best is None or cost < best[0]:
-            best = (cost, q)
-    if best is None:
-        return None
-    q = best[1]
-    return Viewpoint(q[0], q[1], math.atan2(target[1] - q[1], target[0] - q[0]))
+        options.append((math.dist(q, rover), q))
+    for _cost, q in sorted(options):
+        if known_free(rover, q, driven, avoid, settings):
+            return Viewpoint(q[0], q[1], math.atan2(target[1] - q[1], target[0] - q[0]))
+    return None
+
+
+def known_free(
+    a: PointNE, b: PointNE, driven: Sequence[PointNE], avoid: Sequence[PointNE], s: LooksConfig
+) -> bool:
+    """Whether the straight leg a-b stays within ``beside_path_m`` of the path driven
+    and ``clearance_m`` from every victim and candidate (every 0.1 m along it): the
+    rover drives there and back on ground it has already driven, past no one."""
+    if not driven:
+        return False
+    n = max(1, math.ceil(math.dist(a, b) / 0.1))
+    t = np.linspace(0.0, 1.0, n + 1)[:, None]
+    samples = np.asarray(a) + t * (np.asarray(b) - np.asarray(a))
+    path = np.asarray(driven, dtype=float)
+    lo, hi = samples.min(axis=0) - s.beside_path_m, samples.max(axis=0) + s.beside_path_m
+    path = path[np.all((path >= lo) & (path <= hi), axis=1)]
+    if not len(path):
+        return False
+    near = np.sqrt(((samples[:, None, :] - path[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
+    if float(near.max()) > s.beside_path_m + 1e-9:
+        return False
+    if avoid:
+        people = np.asarray(avoid, dtype=float)
+        gap = np.sqrt(((samples[:, None, :] - people[None, :, :]) ** 2).sum(axis=2)).min()
+        if float(gap) < s.clearance_m:
+            return False
+    return True
 
 
 def compass(from_ne: PointNE, to_ne: PointNE) -> str:
@@ -200,6 +230,7 @@ class Phase(Enum):
     GUIDED = "requesting GUIDED"
     DRIVING = "driving"
     LOOKING = "looking"
+    RETURNING = "returning"
     RESUMING = "resuming AUTO"
     LINK_LOST = "link lost"
 
@@ -273,6 +304,7 @@ class LookCounts:
 class _Look:
     candidate: Candidate
     view: Viewpoint
+    start: PointNE  # where the rover left its route: it returns there before AUTO
     started_s: float
     phase_s: float
     sent_s: float = -math.inf  # when the phase's last command went
@@ -368,7 +400,7 @@ class LookMachine:
             if view is None:
                 continue
             self.looked.add(c.track_id)
-            self.look = _Look(c, view, now_s, now_s, sent_s=now_s)
+            self.look = _Look(c, view, here, now_s, now_s, sent_s=now_s)
             self.phase = Phase.GUIDED
             self.counts.started += 1
             what = c.kind.value if c.victim_id == 0 else f"{c.kind.value} (victim {c.victim_id})"
@@ -392,10 +424,12 @@ class LookMachine:
             return self._taken_over(now_s, look, ap)
         if self.phase == Phase.RESUMING:
             return self._resuming(now_s, ap, look)
+        if self.phase == Phase.RETURNING:
+            return self._returning(now_s, rover, look)
         if not self.enabled:
-            return self._abort_and_resume(now_s, look, "looks switched off")
+            return self._abort_and_return(now_s, look, "looks switched off")
         if now_s - look.started_s > s.look_budget_s:
-            return self._abort_and_resume(now_s, look, "time budget spent")
+            return self._abort_and_return(now_s, look, "time budget spent")
         if self.phase == Phase.GUIDED:
             return self._guided(now_s, ap, look)
         outcome = settlement(look.candidate, victims.get(look.candidate.track_id))
@@ -444,7 +478,7 @@ class LookMachine:
             look.phase_s = look.sent_s = now_s
             return [Face(look.view.yaw_rad)], []
         if now_s - look.progress_s > self.settings.stuck_s:
-            return self._abort_and_resume(now_s, look, "stuck on the way")
+            return self._abort_and_return(now_s, look, "stuck on the way")
         if now_s - look.sent_s > _RESEND_S:
             look.sent_s = now_s
             return [GoTo(look.view.north_m, look.view.east_m)], []
@@ -470,7 +504,7 @@ class LookMachine:
         look.outcome = outcome
         key = outcome.split(" to ")[0]
         self.counts.settled[key] = self.counts.settled.get(key, 0) + 1
-        cmds, _ = self._resume(now_s, look)
+        cmds, _ = self._back(now_s, look)
         line = f"closer look: the {look.candidate.kind.value} is {outcome}; resuming the mission"
         return cmds, [Say(line, _SEVERITY_NOTICE)]
 
@@ -479,10 +513,36 @@ class LookMachine:
         self.counts.aborted[reason] = self.counts.aborted.get(reason, 0) + 1
         return Say(f"closer look aborted: {reason}", _SEVERITY_WARNING)
 
-    def _abort_and_resume(self, now_s: float, look: _Look, reason: str) -> Step:
+    def _abort_and_return(self, now_s: float, look: _Look, reason: str) -> Step:
         line = self._aborted(look, reason)
-        cmds, _ = self._resume(now_s, look)
+        # Still asking for GUIDED: the rover has not left its route, AUTO at once.
+        back = self._resume if self.phase == Phase.GUIDED else self._back
+        cmds, _ = back(now_s, look)
         return cmds, [Say(f"{line.text}; resuming the mission", line.severity)]
+
+    def _back(self, now_s: float, look: _Look) -> Step:
+        """Drive back to where the route was left, the way the rover came (known free),
+        so that AUTO goes on from there along the mission's own leg."""
+        self.phase = Phase.RETURNING
+        look.best_m = math.inf
+        look.phase_s = look.progress_s = look.sent_s = now_s
+        return [GoTo(*look.start)], []
+
+    def _returning(self, now_s: float, rover: Rover, look: _Look) -> Step:
+        here = rover.ne
+        late = now_s - look.started_s > self.settings.look_budget_s + self.settings.stuck_s
+        if here is None:
+            return self._resume(now_s, look) if late else ([], [])
+        d = math.dist(here, look.start)
+        if d < look.best_m - _PROGRESS_M:
+            look.best_m = d
+            look.progress_s = now_s
+        if d <= _ARRIVED_M or late or now_s - look.progress_s > self.settings.stuck_s:
+            return self._resume(now_s, look)  # back, or AUTO from here rather than wait
+        if now_s - look.sent_s > _RESEND_S:
+            look.sent_s = now_s
+            return [GoTo(*look.start)], []
+        return [], []
 
     def _resume(self, now_s: float, look: _Look) -> Step:
         self.phase = Phase.RESUMING
@@ -518,7 +578,7 @@ class LookMachine:
         if not rover.connected or not _fresh(ap, now_s):
             return [], []
         if ap.mode == ROVER_GUIDED and ap.armed:  # still ours: give the mission back
-            cmds, _ = self._resume(now_s, look)
+            cmds, _ = self._back(now_s, look)
             return cmds, [Say("vehicle link back: resuming the mission", _SEVERITY_NOTICE)]
         if ap.mode == ROVER_AUTO:
             self._end(now_s)

@@ -22,6 +22,7 @@ from companion.looks import (
     SetMode,
     candidates,
     compass,
+    known_free,
     settlement,
     viewpoint,
 )
@@ -136,8 +137,22 @@ def test_a_viewpoint_is_in_range_beside_the_driven_path_clear_and_facing(
     assert S.view_min_m - 1e-9 <= d <= S.view_max_m + 1e-9
     assert min(math.dist(v.ne, p) for p in driven) <= S.beside_path_m + 1e-9
     assert all(math.dist(v.ne, a) >= S.clearance_m for a in [*avoid, target])
+    assert known_free(rover, v.ne, driven, [*avoid, target], S)
+    for k in range(11):  # the leg there, checked independently every 0.1 of its length
+        x = (rover[0] + (v.north_m - rover[0]) * k / 10, rover[1] + (v.east_m - rover[1]) * k / 10)
+        assert min(math.dist(x, p) for p in driven) <= S.beside_path_m + 1e-9
+        assert all(math.dist(x, a) >= S.clearance_m - 1e-9 for a in [*avoid, target])
     facing = math.atan2(target[1] - v.east_m, target[0] - v.north_m)
     assert abs(math.remainder(v.yaw_rad - facing, math.tau)) < 1e-9
+
+
+def test_no_viewpoint_whose_way_there_leaves_the_driven_path_or_passes_someone() -> None:
+    lane = [(0.0, e * 0.25) for e in range(41)]  # 10 m east along north = 0
+    # The rover stands 3 m off the lane's far end: the leg would cross unknown ground.
+    assert viewpoint((1.2, 5.0), lane, [(1.2, 5.0)], (3.0, 10.0), S) is None
+    # On the lane, with a victim lying across it between the rover and the candidate.
+    assert viewpoint((1.2, 5.0), lane, [(1.2, 5.0), (0.3, 8.0)], (0.0, 10.0), S) is None
+    assert viewpoint((1.2, 5.0), lane, [(1.2, 5.0)], (0.0, 10.0), S) is not None
 
 
 def test_no_viewpoint_without_driven_path_near_it_or_when_another_find_is_in_the_way() -> None:
@@ -232,8 +247,12 @@ def test_a_whole_look_goes_guided_drives_faces_looks_and_resumes_at_its_item() -
     faced = Rover(True, view.north_m, view.east_m, view.yaw_rad)
     m.step(106.0, faced, _ap(106.0, ROVER_GUIDED, acks=acks), [], victims)
     cmds, says = m.step(106.0 + S.look_s, faced, _ap(110.0, ROVER_GUIDED), [], victims)
-    assert cmds == [SetCurrent(7), SetMode(ROVER_AUTO)]
+    assert cmds == [GoTo(0.0, 5.5)]  # back to where it left the route, the way it came
     assert "still unsettled" in says[0].text
+    assert _phase(m) == Phase.RETURNING
+    back = Rover(True, 0.0, 5.45, 0.0)
+    cmds, _ = m.step(110.5, back, _ap(110.5, ROVER_GUIDED), [], victims)
+    assert cmds == [SetCurrent(7), SetMode(ROVER_AUTO)]
     done = _ap(111.0, ROVER_AUTO, acks={MAV_CMD_DO_SET_MODE: (0, 111.0)})
     assert m.step(111.2, faced, done, [], victims) == ([], [])
     assert _phase(m) == Phase.IDLE and m.counts.started == 1
@@ -260,8 +279,12 @@ def test_the_time_budget_aborts_and_resumes_and_the_mission_budget_stops_new_loo
     m.step(100.9, rover, ap, [], victims)
     late = 100.0 + S.look_budget_s + 1.0
     cmds, says = m.step(late, rover, _ap(late, ROVER_GUIDED, acks=acks), [], victims)
-    assert cmds == [SetCurrent(3), SetMode(ROVER_AUTO)]
+    assert cmds == [GoTo(0.0, 5.5)]
     assert "time budget spent" in says[0].text
+    # Back, or not: past the budget and the stuck time, AUTO from wherever it is.
+    later = late + S.stuck_s + 0.1
+    cmds, _ = m.step(later, Rover(True, 1.0, 3.0, 0.0), _ap(later, ROVER_GUIDED), [], victims)
+    assert cmds == [SetCurrent(3), SetMode(ROVER_AUTO)]
     m2, victims2 = _machine_with_path()
     m2.counts.spent_s = S.mission_budget_s - 1.0
     assert _start(m2, victims2) == []
