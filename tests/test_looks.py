@@ -4,12 +4,15 @@ what a look settled, and the safety rules of the steps, without any link."""
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.config import LooksConfig
+from companion.config import LooksConfig, config_from_dict, load_config
 from companion.looks import (
     Face,
     GoTo,
@@ -367,3 +370,39 @@ def test_the_operator_always_wins(events: list[tuple[float, str, int, bool]]) ->
             taken_over = True
             assert m.switched_off
         last = list(cmds)
+
+
+# -- the [looks] section --------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("toml", "expected"),
+    [
+        ("[looks]\nview_min_m = 2.0\nview_max_m = 1.5\n", "[looks] view_min_m = 2.0"),
+        ("[looks]\nclearance_m = 1.2\n", "[looks] clearance_m = 1.2: must be below view_min_m"),
+        ("[looks]\nlook_s = nan\n", "looks.look_s = nan: must be a finite number"),
+        ("[looks]\nenabled = 1\n", "looks.enabled = 1: expected true or false"),
+        ("[looks]\nlook_budget_s = 900.0\n", "must not exceed mission_budget_s"),
+        ("[looks]\nlooks_on = true\n", "[looks] has unknown key 'looks_on'"),
+    ],
+)
+def test_check_config_names_a_bad_looks_setting_in_one_line(
+    tmp_path: Path, toml: str, expected: str
+) -> None:
+    cfg = tmp_path / "companion.toml"
+    cfg.write_text(toml)
+    result = subprocess.run(
+        [sys.executable, "-m", "companion.cli", "check-config", "--config", str(cfg)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0], result.stderr
+
+
+def test_looks_are_off_by_default_and_the_example_leaves_them_off() -> None:
+    assert config_from_dict({}).looks.enabled is False
+    example = Path(__file__).resolve().parents[1] / "systemd" / "config.example.toml"
+    assert load_config(example).looks == LooksConfig()
