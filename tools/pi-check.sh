@@ -24,7 +24,7 @@ PI_MIRROR=${PI_MIRROR:-http://deb.debian.org/debian}
 DATA=${PI_CHECK_DATA:-$REPO/../shared/data/images/real_falls}
 OUT=${PI_CHECK_OUT:-$REPO/build/pi-check}
 MISSION_PRESET=${PI_CHECK_PRESET:-mixed}
-MISSION_S=${PI_CHECK_MISSION_S:-15}
+MISSION_S=${PI_CHECK_MISSION_S:-10}
 # The heavy emulated work runs at the lowest priority: the machine is shared.
 NICE=(nice -n 19)
 SRC_IN_ROOT=/opt/rescue-companion
@@ -96,6 +96,22 @@ trust_local_cas() {
         in_root update-ca-certificates >/dev/null 2>&1 \
             || die "update-ca-certificates failed in the arm64 root"
     fi
+}
+
+# qemu-user shows the emulated programs this host's /proc/cpuinfo (an x86 one), and
+# LiteRT's CPU detection (the cpuinfo library, for XNNPACK and its own kernels)
+# crashes on it: the first model's allocate_tensors() or invoke() dies of SIGSEGV. A
+# Pi 5 has no such file, so the root sees a Pi 5's: four Cortex-A76 cores.
+pi5_cpuinfo() {
+    local i file=$PI_CACHE/cpuinfo-pi5
+    for i in 0 1 2 3; do
+        printf 'processor\t: %s\nBogoMIPS\t: 108.00\n' "$i"
+        printf 'Features\t: fp asimd evtstrm aes pmull sha1 sha2 crc32 atomics fphp asimdhp cpuid asimdrdm lrcpc dcpop asimddp\n'
+        printf 'CPU implementer\t: 0x41\nCPU architecture: 8\nCPU variant\t: 0x4\nCPU part\t: 0xd0b\nCPU revision\t: 1\n\n'
+    done >"$file"
+    printf 'Revision\t: d04170\nSerial\t\t: 0000000000000000\nModel\t\t: Raspberry Pi 5 Model B Rev 1.0\n' >>"$file"
+    mount --bind "$file" "$PI_ROOT/proc/cpuinfo"
+    MOUNTED=("$PI_ROOT/proc/cpuinfo" "${MOUNTED[@]}")
 }
 
 MOUNTED=()
@@ -182,6 +198,7 @@ main() {
     mount_in_root "$PI_CACHE/apt-archives" /var/cache/apt/archives
     mount_in_root "$PI_CACHE/pip" /root/.cache/pip
     mount_in_root /proc /proc
+    pi5_cpuinfo
     mount_in_root /sys /sys
     mount_in_root /dev /dev
     cp -L /etc/resolv.conf "$PI_ROOT/etc/resolv.conf"
