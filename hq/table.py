@@ -1,6 +1,8 @@
 """The live terminal table: every victim and robot, readable at a glance.
 
-Most urgent first. VISIBLE is the share of the body a robot sees, in percent (of
+Most urgent first. VICTIM is the HQ's name for the person (``CRIT07``: urgency, or
+RESC / FALSE, and the HQ's number), as QGC's map label, the console card and the
+robots' announcements say it. VISIBLE is the share of the body a robot sees, in percent (of
 several robots, the lowest: the most buried view); urgency in colour (CRITICAL red,
 MEDIUM orange, LIGHT green) when the output is a terminal, plain text otherwise. Rescued and false-alarm
 victims are dimmed. ``ACK`` counts operator actions still waiting for the robot's
@@ -18,6 +20,7 @@ from dataclasses import dataclass
 from fusion.types import Cue, TrackState, Urgency
 from hq.records import Robot
 from hq.view import HqVictim
+from mavlink_io.statustext import RETIRED_LABEL, URGENCY_LABEL, callsign
 
 _RESET = "\x1b[0m"
 _DIM = "\x1b[2m"
@@ -75,12 +78,15 @@ def _paint(text: str, code: str, colour: bool) -> str:
 
 def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) -> list[str]:
     head = (
-        f"{'ID':>4} {'URGENCY':<9}{'VISIBLE':>7} {'STATE':<17} {'ROBOT:VICTIM':<16}"
+        f"{'VICTIM':<8} {'URGENCY':<9}{'VISIBLE':>7} {'STATE':<17} {'ROBOT:VICTIM':<16}"
         f"{'POSITION':<24}{'±m':>5} {'SEEN':>7} {'ACK':>3} CUES"
     )
     rows = [_paint(head, _BOLD, colour)]
     for v in victims:
         srcs = " ".join(f"{r}:{i}" for r, i in v.sources)
+        # The HQ's name for the person, as QGC's map label, the console card and the
+        # robots' announcements after the HQ's answer say it (CRIT07).
+        name = callsign(RETIRED_LABEL.get(v.state, URGENCY_LABEL[v.urgency]), v.hq_id)
         urgency = f"{v.urgency.name:<9}"
         done = v.state in (TrackState.RESCUED, TrackState.FALSE_ALARM)
         state = v.state.name + ("?" if v.actions_pending else "")
@@ -90,10 +96,10 @@ def victim_rows(victims: Sequence[HqVictim], now_unix_s: float, colour: bool) ->
             f"{v.actions_pending or '':>3} {cues_short(v.cues)}"
         )
         if done:
-            rows.append(_paint(f"{v.hq_id:>4} {urgency}{line_rest}", _DIM, colour))
+            rows.append(_paint(f"{name:<8} {urgency}{line_rest}", _DIM, colour))
         else:
             urgency_cell = _paint(urgency, _URGENCY_COLOUR[v.urgency], colour)
-            rows.append(f"{v.hq_id:>4} {urgency_cell}{line_rest}")
+            rows.append(f"{name:<8} {urgency_cell}{line_rest}")
     if not victims:
         rows.append("   (no victims reported yet)")
     return rows
