@@ -63,7 +63,7 @@ binfmt() {
 build_root() {
     local stamp=$BASE/.pi-check-root
     if [ -e "$stamp" ]; then
-        say "arm64 root cached in $BASE; a fresh copy of it in $PI_ROOT"
+        say "arm64 root cached in $BASE"
         return
     fi
     say "building a Debian bookworm arm64 root in $BASE (once; about 15 minutes)"
@@ -217,6 +217,14 @@ main() {
     setup_s=$(( $(date +%s) - start ))
     say "set-up done in ${setup_s} s (emulated)"
     echo "$setup_s" >"$OUT/pi/setup_seconds"
+    # The unit file on aarch64's systemd: the project's own tests of it (verify, exposure).
+    # Not the console's browser tests: chromium installs but does not run under qemu-user
+    # (its child processes fail to start and it aborts; no ptrace there).
+    say "the systemd unit's tests in the arm64 root"
+    in_root bash -c "cd $SRC_IN_ROOT && .venv/bin/python -m pytest -q -p no:xdist \
+        -p no:cacheprovider tests/test_systemd_unit.py" >"$OUT/pi/systemd-tests.log" 2>&1 \
+        || { tail -n 30 "$OUT/pi/systemd-tests.log" >&2; die "the systemd unit's tests failed in the arm64 root"; }
+    tail -n 1 "$OUT/pi/systemd-tests.log"
 
     # The same mission and pictures on both sides: the mission is recorded on the host
     # (simulated time: the same seed gives the same frames), then bind-mounted read-only.
