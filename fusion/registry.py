@@ -138,7 +138,7 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...],
 #                "fixes": [[t_unix_s, north_m, east_m], ...],
 #                "warm_hits": int, "cues": int (a fusion.types.Cue bitmask),
-#                "colour_looks": int, "warm_fixes": [[t_unix_s, north_m, east_m], ...]}]}
+#                "colour_looks": int}]}
 #
 # "seen_with" was added to version 1 on 2026-11-27 (a snapshot written before reads as
 # []), and "body_seen": bool with it, which "body_hits" and "part_hits" (detections as
@@ -152,8 +152,7 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 # track) were added on 2026-11-29; a snapshot without them reads as 0 warm hits and
 # the colour cues its body and part hits imply. "colour_looks" (clear colour looks that
 # found nothing at a track only the thermal camera found) was added on 2026-11-29 too;
-# without it, 0. "warm_fixes" (the thermal camera's fixes, kept apart from the colour
-# ones in "fixes") was added on 2026-11-29; without it, none.
+# without it, 0.
 
 _ALL_CUES = Cue.COLOUR_BODY | Cue.COLOUR_PART | Cue.WARM
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
@@ -184,7 +183,6 @@ class TrackRecord:
     part_hits: int = 0  # detections as a lone hand or face only
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
     fixes: tuple[tuple[float, float, float], ...] = ()  # (t_unix_s, north_m, east_m)
-    warm_fixes: tuple[tuple[float, float, float], ...] = ()  # the thermal camera's
     warm_hits: int = 0  # detections by the thermal camera
     cues: Cue = NO_CUES  # which sensing has seen it
     colour_looks: int = 0  # clear colour looks that found nothing (a warm-only track)
@@ -219,7 +217,6 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "warm_hits": r.warm_hits,
                 "cues": int(r.cues),
                 "colour_looks": r.colour_looks,
-                "warm_fixes": [list(f) for f in r.warm_fixes],
             }
             for r in records
         ],
@@ -321,8 +318,15 @@ def _record(obj: Any, where: str) -> TrackRecord:
         isinstance(i, int) and not isinstance(i, bool) and i >= 1 for i in seen_with
     ):
         raise FusionError(f"snapshot{where}.seen_with: expected a list of track ids")
-    fixes = _fixes(obj, "fixes", where)
-    warm_fixes = _fixes(obj, "warm_fixes", where)
+    fixes_raw = obj.get("fixes", [])
+    if not isinstance(fixes_raw, list):
+        raise FusionError(f"snapshot{where}.fixes: expected a list")
+    fixes = tuple(
+        cast(tuple[float, float, float], _floats(f, 3, f"{where}.fixes[{i}]"))
+        for i, f in enumerate(fixes_raw)
+    )
+    for i, (_t, north_m, east_m) in enumerate(fixes):
+        _local(north_m, east_m, f"{where}.fixes[{i}]")
     warm_hits = _int(obj, "warm_hits", where, 0) if "warm_hits" in obj else 0
     colour_looks = _int(obj, "colour_looks", where, 0) if "colour_looks" in obj else 0
     if "cues" in obj:
@@ -355,7 +359,6 @@ def _record(obj: Any, where: str) -> TrackRecord:
         part_hits=part_hits,
         seen_with=tuple(sorted(set(seen_with))),
         fixes=fixes,
-        warm_fixes=warm_fixes,
         warm_hits=warm_hits,
         cues=cues,
         colour_looks=colour_looks,
@@ -393,17 +396,3 @@ def check_links(victim_ids: Iterable[int], merged_into: Iterable[int | None]) ->
     for target in merged_into:
         if target is not None and target not in known:
             raise FusionError(f"snapshot.tracks: merged_into {target} names no victim")
-
-
-def _fixes(obj: dict[str, Any], key: str, where: str) -> tuple[tuple[float, float, float], ...]:
-    """A stored list of fixes [[t_unix_s, north_m, east_m], ...] (none when absent)."""
-    raw = obj.get(key, [])
-    if not isinstance(raw, list):
-        raise FusionError(f"snapshot{where}.{key}: expected a list")
-    fixes = tuple(
-        cast(tuple[float, float, float], _floats(f, 3, f"{where}.{key}[{i}]"))
-        for i, f in enumerate(raw)
-    )
-    for i, (_t, north_m, east_m) in enumerate(fixes):
-        _local(north_m, east_m, f"{where}.{key}[{i}]")
-    return fixes

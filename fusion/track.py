@@ -11,12 +11,7 @@ or from 1 m, end-on or half hidden, is 0.5 m off in the median, its covariance s
 0.13 m), and one stray fix after a minute out of view moved a victim 0.7 m. The
 filter's mean and covariance still decide which detections are the victim's
 (gating, merging). Measured on the scenario suite and a recorded 10-minute mission
-(docs/VISION.md, "Where a victim lies: the median of its fixes").
-
-The thermal camera's fixes (``Track.warm_fixes``) are kept apart: a Lepton pixel
-spans three to four times the floor a colour pixel does, so once a victim has
-``MIN_FIXES`` colour fixes its position is their median alone; one seen only warm
-(or not yet often in colour) lies at the median of all its fixes."""
+(docs/VISION.md, "Where a victim lies: the median of its fixes")."""
 
 from __future__ import annotations
 
@@ -63,8 +58,6 @@ class Track:
     # The fixes the filter took, (t_unix_s, north_m, east_m), newest last and at most
     # TrackerParams.position_fixes of them: the victim's position is their median.
     fixes: deque[tuple[float, float, float]] = field(default_factory=deque, repr=False)
-    # ... and the thermal camera's, apart (see the module doc).
-    warm_fixes: deque[tuple[float, float, float]] = field(default_factory=deque, repr=False)
     _position: FloatArray | None = field(default=None, init=False, repr=False)  # cached median
 
     @property
@@ -72,29 +65,25 @@ class Track:
         """The filter's mean: what detections are gated against."""
         return self.kf.x.reshape(2)
 
-    def add_fix(self, t_unix_s: float, north_m: float, east_m: float, warm: bool = False) -> None:
-        (self.warm_fixes if warm else self.fixes).append((t_unix_s, north_m, east_m))
+    def add_fix(self, t_unix_s: float, north_m: float, east_m: float) -> None:
+        self.fixes.append((t_unix_s, north_m, east_m))
         self._position = None
 
     def take_fixes(self, other: Track) -> None:
         """Add ``other``'s fixes (a merge), keeping the newest."""
         merged = sorted([*self.fixes, *other.fixes])
         self.fixes = deque(merged, maxlen=self.fixes.maxlen)
-        warm = sorted([*self.warm_fixes, *other.warm_fixes])
-        self.warm_fixes = deque(warm, maxlen=self.warm_fixes.maxlen)
         self._position = None
 
     @property
     def position(self) -> FloatArray:
-        """Where the victim lies: the geometric median of its colour fixes, of all
-        its fixes while it has fewer than MIN_FIXES colour ones, or the filter's mean
-        while it has fewer than MIN_FIXES in all (a restored track from before the
+        """Where the victim lies: the geometric median of its fixes, or the filter's
+        mean while it has fewer than MIN_FIXES (a restored track from before the
         fixes were stored has none)."""
-        fixes = [*self.fixes] if len(self.fixes) >= MIN_FIXES else [*self.fixes, *self.warm_fixes]
-        if len(fixes) < MIN_FIXES:
+        if len(self.fixes) < MIN_FIXES:
             return self.x
         if self._position is None:
-            self._position = geometric_median(np.array([f[1:] for f in fixes]))
+            self._position = geometric_median(np.array([f[1:] for f in self.fixes]))
         return self._position
 
 
@@ -161,7 +150,6 @@ def record_of(t: Track) -> TrackRecord:
         part_hits=t.part_hits,
         seen_with=tuple(sorted(t.seen_with)),
         fixes=tuple(t.fixes),
-        warm_fixes=tuple(t.warm_fixes),
         warm_hits=t.warm_hits,
         colour_looks=t.colour_looks,
         cues=t.cues,
@@ -188,7 +176,6 @@ def track_of(rec: TrackRecord, urgency_window: int, position_fixes: int) -> Trac
         body_hits=rec.body_hits,
         part_hits=rec.part_hits,
         fixes=deque(rec.fixes, maxlen=position_fixes),
-        warm_fixes=deque(rec.warm_fixes, maxlen=position_fixes),
         warm_hits=rec.warm_hits,
         colour_looks=rec.colour_looks,
         cues=rec.cues,

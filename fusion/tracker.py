@@ -249,9 +249,7 @@ class VictimTracker:
         for k, (i, j) in enumerate(pairs):
             live[i].kf.x = x_new[k].reshape(2, 1)
             live[i].kf.P = p_new[k]
-            obs = observations[j]
-            warm = obs.sensor == Sensor.THERMAL
-            live[i].add_fix(obs.t_unix_s, float(z[k, 0]), float(z[k, 1]), warm)
+            live[i].add_fix(observations[j].t_unix_s, float(z[k, 0]), float(z[k, 1]))
 
     def _hit(self, t: Track, obs: Observation, events: list[TrackEvent]) -> None:
         """Bookkeeping of a matched track (its filter is already updated)."""
@@ -335,10 +333,10 @@ class VictimTracker:
             part_hits=1 if obs.part_only else 0,
             warm_hits=1 if obs.sensor == Sensor.THERMAL else 0,
             cues=obs.cue,
-            fixes=deque(maxlen=self._params.position_fixes),
-            warm_fixes=deque(maxlen=self._params.position_fixes),
+            fixes=deque(
+                [(obs.t_unix_s, obs.north_m, obs.east_m)], maxlen=self._params.position_fixes
+            ),
         )
-        t.add_fix(obs.t_unix_s, obs.north_m, obs.east_m, obs.sensor == Sensor.THERMAL)
         self._next_track_id += 1
         self._tracks[t.track_id] = t
 

@@ -165,19 +165,3 @@ def test_colour_looks_do_not_cap_a_body_the_colour_camera_has_seen() -> None:
     (victim,) = tracker.victims()
     assert victim.cues == Cue.COLOUR_BODY | Cue.WARM
     assert victim.urgency == Urgency.LIGHT
-
-
-def test_a_victim_seen_in_colour_lies_where_the_colour_camera_puts_it() -> None:
-    # The Lepton's fixes are coarser: 0.3 m off here. Once three colour fixes are in,
-    # the victim lies at their median; seen only warm, at the warm fixes'.
-    tracker = VictimTracker(PARAMS)
-    for k in range(6):
-        tracker.update([obs(2.3, 3.0, k, Sensor.THERMAL)], T0 + k, always, Sensor.THERMAL)
-    (warm_only,) = tracker.victims()
-    assert warm_only.north_m == pytest.approx(2.3, abs=0.01)
-    for k in range(6, 9):
-        tracker.update([obs(2.0, 3.0, k)], T0 + k, always, Sensor.COLOUR)
-    (both,) = tracker.victims()
-    assert both.north_m == pytest.approx(2.0, abs=0.01)
-    restored = VictimTracker.restore(PARAMS, copy.deepcopy(tracker.snapshot()))
-    assert restored.victims()[0].north_m == pytest.approx(2.0, abs=0.01)
