@@ -14,7 +14,9 @@ probability that a person there would have been found by any of them:
 with the robots' EKF origins (GPS_GLOBAL_ORIGIN, or the operator's ``--origin``)
 each robot's cells are moved into the frame of the lowest-numbered robot's origin
 (to the nearest cell: 0.25 m, where a tangent plane's curvature is negligible); a
-robot without an origin then cannot be placed and is left out (``unplaced``). With
+robot without an origin then cannot be placed and is left out (``unplaced``), as is
+one whose origin lies more than ``MAX_SITE_M`` (2 km) from the frame's (another
+site, or a wrong origin: its map would span kilometres of empty cells). With
 no origin at all, every robot's local frame is taken as the same one (the
 ASSUMPTION of hq.merge).
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -48,6 +51,10 @@ log = logging.getLogger(__name__)
 
 CELL_M = 0.25  # the only cell size the HQ merges (fusion.coverage's default)
 NEAR_ROBOT_M = 20.0  # unsearched places this close to a robot are pointed out
+# A robot whose origin puts its map farther than this from the frame's origin is at
+# another site, or its origin is wrong: its map is left out (unplaced), not drawn
+# across kilometres of empty cells.
+MAX_SITE_M = 2000.0
 MAX_PLACES = 3
 _Q_MAX = 255.0
 
@@ -117,7 +124,8 @@ class MergedMap:
     p: NDArray[np.float64]
     origin: GlobalOrigin | None  # the frame's global origin; None: the robots' local frame
     robots: tuple[int, ...]  # the robots whose cells are in it
-    unplaced: tuple[int, ...]  # robots with cells but no origin, when others have one
+    # robots with cells but no origin when others have one, or an origin over 2 km off
+    unplaced: tuple[int, ...]
     cell_m: float = CELL_M
 
     def classes(self) -> NDArray[np.int64]:
@@ -261,7 +269,7 @@ def merged_map(
     with_origin = [r for r in robots if origins.for_robot(r) is not None]
     origin = origins.for_robot(with_origin[0]) if with_origin else None
     placed = with_origin if with_origin else robots
-    unplaced = tuple(r for r in robots if r not in placed)
+    far: list[int] = []
     keys: list[NDArray[np.int64]] = []
     misses: list[NDArray[np.float64]] = []
     for r in placed:
@@ -270,16 +278,21 @@ def merged_map(
         own = origins.for_robot(r)
         if origin is not None and own is not None and own != origin:
             dn, de, _ = geodetic_to_ned(origin, own.lat_deg, own.lon_deg, own.alt_m)
+            if math.hypot(dn, de) > MAX_SITE_M:
+                far.append(r)
+                continue
             shift = np.array([round(dn / CELL_M), round(de / CELL_M)], np.int64)
         keys.append(a[:, :2] + shift)
         misses.append(1.0 - a[:, 2] / _Q_MAX)
+    unplaced = tuple(sorted([r for r in robots if r not in placed] + far))
+    shown = tuple(r for r in placed if r not in far)
     if not keys:
         return MergedMap(np.zeros((0, 2), np.int64), np.zeros(0), origin, (), unplaced)
     allc, allm = np.concatenate(keys), np.concatenate(misses)
     uniq, inverse = np.unique(allc, axis=0, return_inverse=True)
     prod = np.ones(len(uniq))
     np.multiply.at(prod, inverse.ravel(), allm)
-    return MergedMap(uniq, 1.0 - prod, origin, tuple(placed), unplaced)
+    return MergedMap(uniq, 1.0 - prod, origin, shown, unplaced)
 
 
 def load(registry: Registry) -> MergedMap:

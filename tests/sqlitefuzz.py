@@ -14,7 +14,9 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-Cell = tuple[str, str, int]  # (table, column, rowid)
+# (table, column, row): the row is its rowid, or its primary key's values in a table
+# WITHOUT ROWID.
+Cell = tuple[str, str, Any]
 
 # Every SQLite type (INTEGER, REAL, TEXT, BLOB), with the values that break readers.
 cell_values: st.SearchStrategy[Any] = st.one_of(
@@ -45,8 +47,9 @@ def cells(path: Path, tables: tuple[str, ...] | None = None) -> list[Cell]:
         out = []
         for table in names:
             columns = [row[1] for row in db.execute(f"PRAGMA table_info({table})")]
-            for (rowid,) in db.execute(f"SELECT rowid FROM {table}"):
-                out += [(table, c, rowid) for c in columns]
+            key = _row_key(db, table)
+            for row in db.execute(f"SELECT {', '.join(key)} FROM {table}"):
+                out += [(table, c, row[0] if key == ["rowid"] else tuple(row)) for c in columns]
         return out
     finally:
         db.close()
@@ -59,10 +62,24 @@ def damaged_copy(template: Path, path: Path, edits: list[tuple[Cell, Any]]) -> s
     db = sqlite3.connect(path, isolation_level=None)
     changed = set()
     try:
-        for (table, column, rowid), value in edits:
+        for (table, column, row), value in edits:
+            key = _row_key(db, table)
+            where = " AND ".join(f"{k}=?" for k in key)
+            args = (row,) if key == ["rowid"] else tuple(row)
             with contextlib.suppress(sqlite3.IntegrityError):
-                db.execute(f"UPDATE {table} SET {column}=? WHERE rowid=?", (value, rowid))
-                changed.add((table, column, rowid))
+                db.execute(f"UPDATE {table} SET {column}=? WHERE {where}", (value, *args))
+                changed.add((table, column, row))
     finally:
         db.close()
     return changed
+
+
+def _row_key(db: sqlite3.Connection, table: str) -> list[str]:
+    """How a row of ``table`` is named: ["rowid"], or a table WITHOUT ROWID's primary
+    key columns in key order."""
+    try:
+        db.execute(f"SELECT rowid FROM {table} LIMIT 1")
+        return ["rowid"]
+    except sqlite3.OperationalError:
+        info = list(db.execute(f"PRAGMA table_info({table})"))
+        return [row[1] for row in sorted(info, key=lambda r: r[5]) if row[5] > 0]

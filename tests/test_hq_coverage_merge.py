@@ -51,6 +51,16 @@ def test_robots_with_origins_meet_in_the_first_robots_frame() -> None:
     assert merged.p.tolist() == [1.0]  # the same cell: robot 2's (0, 0) is robot 1's (40, -20)
 
 
+def test_a_robot_whose_origin_is_kilometres_off_is_left_out_not_drawn_across_them() -> None:
+    # A wrong origin (or another site) 5 km away would span 20,000 cells of empty box.
+    lat, lon, alt = ned_to_geodetic(ORIGIN, 5000.0, 0.0, 0.0)
+    origins = Origins({1: ORIGIN, 2: GlobalOrigin(lat, lon, alt)}, None)
+    merged = coverage.merged_map({1: [(0, 0, 200)], 2: [(0, 0, 200)]}, origins)
+    assert merged.robots == (1,) and merged.unplaced == (2,)
+    assert merged.box() == (0, 0, 0, 0)
+    assert coverage.console_json(merged, {1: (0.0, 0.0)})["unplaced"] == [2]
+
+
 def test_unsearched_places_near_the_robots_largest_first() -> None:
     # A 20 x 20 cell room glanced at, but for a 6 x 6 hole and a 2 x 2 hole.
     nn, ee = np.meshgrid(np.arange(20), np.arange(20), indexing="ij")

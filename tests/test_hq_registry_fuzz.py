@@ -16,7 +16,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fusion.types import GlobalOrigin
-from hq.export import export_all
+from hq import coverage
+from hq.export import coverage_geojson, export_all
 from hq.records import OperatorAction, RobotStatus
 from hq.registry import Registry
 from hq.registry_file import RegistryError
@@ -29,7 +30,7 @@ from tests.test_hq_units import ORIGIN, incoming, report
 
 def _template() -> Path:
     """A registry as a mission leaves it: reports of two robots, a status, origins, an
-    action sent and acknowledged, a picture."""
+    action sent and acknowledged, a picture, two robots' searched-area cells."""
     path = template_dir("hq-fuzz-") / "template.sqlite"
     ok, jpeg = cv2.imencode(".jpg", np.full((32, 48, 3), 120, np.uint8))
     assert ok
@@ -48,6 +49,8 @@ def _template() -> Path:
         reg.note_action_sent(seq, 1.7e9)
         reg.ack_action(seq, 1.7e9 + 1, 0)
         reg.store_picture(1, 1, 3, jpeg.tobytes(), 1.7e9)
+        reg.store_coverage(1, [(0, 0, 200), (0, 1, 90), (3, -2, 12)])
+        reg.store_coverage(2, [(0, 0, 150), (5, 5, 255)])
     return path
 
 
@@ -85,6 +88,9 @@ def test_any_value_in_any_cell_is_skipped_and_named(
                     reg.picture(robot, victim)
                     reg.picture_id(robot, victim)
             export_all(victims, work / "exports")
+            merged = coverage.load(reg)  # the searched-area map: console and exports
+            coverage.console_json(merged, {1: (0.0, 0.0)})
+            coverage_geojson(merged)
             assert all(where and "\n" not in where for where in reg.bad_rows)
 
 

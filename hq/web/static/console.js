@@ -189,7 +189,7 @@ function drawCoverage(c) {
         const near = p.robot_sysid == null ? "" : ` · ${p.distance_m} m from R${p.robot_sysid}`;
         lines.push(el("div", { class: "place" }, `#${i + 1} unsearched ${p.area_m2.toFixed(1)} m² at N ${signed(p.north_m)} E ${signed(p.east_m)}${near}`));
       });
-      if (c.unplaced.length) lines.push(el("div", { class: "warn" }, `robot ${c.unplaced.join(", ")}: no EKF origin, its map is not shown`));
+      if (c.unplaced.length) lines.push(el("div", { class: "warn" }, `robot ${c.unplaced.join(", ")}: no EKF origin (or one over 2 km from the others'), its map is not shown`));
       lines.push(el("div", { class: "note" }, "claimed from the cameras, no depth: floor behind tall debris counts as seen"));
     }
     legend.replaceChildren(...lines);
