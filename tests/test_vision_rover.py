@@ -49,7 +49,7 @@ def _views(name: str):  # type: ignore[no-untyped-def]
                 yield pose, image, FrameGeometry.from_pose(camera, pose, PARAMS), victim
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture()  # fresh per case: its passes' turns must not depend on the test order
 def people():  # type: ignore[no-untyped-def]
     return make_detector(DetectorConfig())
 
@@ -68,10 +68,13 @@ def _floor_error_m(pose: PoseSample, det, victim) -> float:  # type: ignore[no-u
         # Orange top, navy trousers, fully visible. LIGHT in 3 of 9 views since the
         # heatmap cap (2026-11-27, 4 or more before): the simulated body's joint
         # heatmaps are weak from the rover's low camera (docs/VISION.md). With the
-        # full landmark model (2026-11-28) 4 of 9, and 3 of 9 in the dark zone
+        # full landmark model (2026-11-28) 4 of 9, and 2 of 9 in the dark zone
         # (lite 4 there; one of full's views reads 49 %, just under the boundary).
+        # Each case has a fresh detector: its extra passes take turns over frames, so
+        # a detector carried over from the cases before read the dark zone's views 3
+        # of 9 right or 2 by the order xdist ran them in (2026-11-29).
         ("light", 5, Urgency.LIGHT, 3),
-        ("dark", 5, Urgency.LIGHT, 3),  # the same in a dark zone (8 % light)
+        ("dark", 5, Urgency.LIGHT, 2),  # the same in a dark zone (8 % light)
         # Half under a slab: found in about half the views (from a low camera a body
         # whose far half is buried looks whole end-on), its class not reliably.
         ("medium", 4, None, 0),
