@@ -22,6 +22,23 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+LIGHT_PATROL_START_UNIX_S = 1_767_000_000.0
+
+
+@pytest.fixture(scope="session")
+def light_patrol(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 25 s recording of the rover patrolling across a fully visible victim (preset
+    "light"), the thermal camera beside the colour one: recorded once per test
+    process for the replay tests that read it (it takes 15-40 s to render)."""
+    from scenarios.live import _patrol
+    from scenarios.record import record
+    from scenarios.world import preset
+
+    out = tmp_path_factory.mktemp("light-patrol")
+    record(_patrol(preset("light")), out, duration_s=25.0, start_unix_s=LIGHT_PATROL_START_UNIX_S)
+    return out
+
+
 # The checkout must stay clean: a telemetry log belongs where the config (or the
 # test's tmp_path) says. MAVProxy writes mav.tlog and mav.tlog.raw into its working
 # directory unless told otherwise, and such files were once committed at the root.

@@ -15,20 +15,13 @@ import pytest
 from companion.config import config_from_dict, load_config
 from companion.replay import replay, result_document
 from mavlink_io.tlog import read_tlog
-from scenarios.live import _patrol
-from scenarios.record import record
 from scenarios.score import load_report, load_truth, score
-from scenarios.world import preset
-
-START_UNIX_S = 1_767_000_000.0
 
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 25 s recording of the rover patrolling across a fully visible victim."""
-    out = tmp_path_factory.mktemp("mission")
-    record(_patrol(preset("light")), out, duration_s=25.0, start_unix_s=START_UNIX_S)
-    return out
+def mission(light_patrol: Path) -> Path:
+    """The shared 25 s recording of a patrol across a fully visible victim."""
+    return light_patrol
 
 
 def _replay_cli(mission: Path, out: Path) -> subprocess.CompletedProcess[str]:
