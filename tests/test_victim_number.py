@@ -100,8 +100,13 @@ def test_end_to_end_the_robot_says_the_hq_number_after_the_hq_answered(
             while wanted not in log.read_text():
                 assert time.monotonic() < deadline, log.read_text()[-3000:]
                 time.sleep(0.2)
-            with Registry(hq.db) as reg:  # the map came too, over the same link
-                cells = reg.coverage().get(1, [])
+            # The map comes too, over the same link, after the reports (300 B/s).
+            deadline = time.monotonic() + 30.0
+            cells: list[tuple[int, int, int]] = []
+            while len(cells) <= 100 and time.monotonic() < deadline:
+                with Registry(hq.db) as reg:
+                    cells = reg.coverage().get(1, [])
+                time.sleep(0.5)
         finally:
             proc.send_signal(signal.SIGTERM)
             assert proc.wait(timeout=15) == 0, log.read_text()[-3000:]
