@@ -253,29 +253,20 @@ class Pipeline:
 def _clear_look(
     image: np.ndarray, camera: CameraModel, pose: PoseSample, geo: GeolocationParams
 ) -> Callable[[float, float], bool]:
-    """Where the colour frame had a clear look at the floor: in view within ``geo``'s
-    range and lit there (the mean luma of the 16x16 pixels around the point at least
-    LIT_LUMA, the level the person models work at; docs/VISION.md)."""
+    """Where the colour frame (BGR) had a clear look at the floor: in view within
+    ``geo``'s range and lit there (the mean luma of the 16x16 pixels around the point
+    at least LIT_LUMA, the level the person models work at; docs/VISION.md)."""
+    r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
+    vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
+    floor_down_m = pose.down_m + geo.floor_down_m
 
     def clear(north_m: float, east_m: float) -> bool:
+        # in_view keeps the point 10 px inside the image: its patch is never empty
         if not in_view(camera, pose, north_m, east_m, geo):
             return False
-        r_ned_body = rotation_zyx(pose.roll_rad, pose.pitch_rad, pose.yaw_rad)
-        vehicle = np.array([pose.north_m, pose.east_m, pose.down_m])
-        point = np.array([[north_m, east_m, pose.down_m + geo.floor_down_m]])
-        px, inside = camera.project_ned(point, vehicle, r_ned_body)
-        if not inside[0]:
-            return False
+        px, _ = camera.project_ned(np.array([[north_m, east_m, floor_down_m]]), vehicle, r_ned_body)
         u, v = int(px[0, 0]), int(px[0, 1])
-        patch = image[max(0, v - 8) : v + 8, max(0, u - 8) : u + 8]
-        if patch.size == 0:
-            return False
-        luma = float(patch.mean()) / 255.0 if patch.ndim == 2 else _mean_luma(patch)
-        return luma >= LIT_LUMA
+        b, g, r = image[max(0, v - 8) : v + 8, max(0, u - 8) : u + 8].reshape(-1, 3).mean(axis=0)
+        return float(0.114 * b + 0.587 * g + 0.299 * r) / 255.0 >= LIT_LUMA
 
     return clear
-
-
-def _mean_luma(bgr: np.ndarray) -> float:
-    b, g, r = (float(bgr[..., i].mean()) for i in range(3))
-    return (0.114 * b + 0.587 * g + 0.299 * r) / 255.0
