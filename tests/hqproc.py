@@ -124,3 +124,37 @@ def acks_waiting(robot: SimRobot) -> list[object]:
 
 def ack_for(robot: SimRobot, seq: int) -> object:
     return robot.wait_for("RESCUE_ACK", ACK_TIMEOUT_S, acked_msgid=43100, seq=seq).msg
+
+
+def start_companion(
+    tmp_path: Path, vehicle_url: str, camera_source: str, hq_port: int, extra_toml: str = ""
+) -> tuple[subprocess.Popen[bytes], Path]:
+    """`rescue-companion run` talking straight to the HQ at ``hq_port`` (no tunnel),
+    its state in tmp_path/state; returns the process and its log file."""
+    cfg = tmp_path / "companion.toml"
+    cfg.write_text(
+        f'[vehicle]\nurl = "{vehicle_url}"\n'
+        f'[hq]\nurl = "udpout:127.0.0.1:{hq_port}"\ntunnel = false\nresend_initial_s = 0.5\n'
+        f'[camera]\nsource = "{camera_source}"\n'
+        f'[paths]\nstate_dir = "{tmp_path / "state"}"\n' + extra_toml
+    )
+    log = tmp_path / "companion.log"
+    with log.open("wb") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
+    return proc, log
+
+
+def mark(db: Path, robot: int, victim: int, action: str) -> None:
+    """The operator's decision through `rescue-hq mark` (``action``: rescued, ...)."""
+    done = subprocess.run(
+        [
+            sys.executable, "-m", "hq.cli", "mark", "--db", str(db),
+            "--robot", str(robot), "--victim", str(victim), f"--{action}",
+        ],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from hqproc import mark, start_companion
 from test_hq_e2e import HqProcess, start_hq  # noqa: F401  (the fixture)
 
 from scenarios.live import LiveSim
@@ -26,31 +27,11 @@ def test_direct_link_report_ack_and_operator_mark(
 ) -> None:
     hq = start_hq()
     with LiveSim(preset("light"), patrol_first_victim=True, speed_m_s=0.25) as sim:
-        cfg = tmp_path / "companion.toml"
-        cfg.write_text(
-            f'[vehicle]\nurl = "{sim.vehicle_url}"\n'
-            f'[hq]\nurl = "udpout:127.0.0.1:{hq.port}"\ntunnel = false\nresend_initial_s = 0.5\n'
-            f'[camera]\nsource = "{sim.camera_source}"\n'
-            f'[paths]\nstate_dir = "{tmp_path / "state"}"\n'
-        )
-        log = tmp_path / "companion.log"
-        with log.open("wb") as out:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
-                stdout=out,
-                stderr=subprocess.STDOUT,
-            )
+        proc, log = start_companion(tmp_path, sim.vehicle_url, sim.camera_source, hq.port)
         try:
             line = hq.wait_line("report robot 1 victim", 60.0)
             victim_id = int(re.search(r"victim (\d+)", line).group(1))  # type: ignore[union-attr]
-            mark = subprocess.run(
-                [
-                    sys.executable, "-m", "hq.cli", "mark", "--db", str(hq.db),
-                    "--robot", "1", "--victim", str(victim_id), "--rescued",
-                ],
-                capture_output=True, text=True, timeout=60,
-            )  # fmt: skip
-            assert mark.returncode == 0, mark.stderr
+            mark(hq.db, 1, victim_id, "rescued")
             # The running HQ sends the action; the robot applies it and reports the
             # victim RESCUED, which the HQ receives and acknowledges.
             deadline = time.monotonic() + 30.0
@@ -61,14 +42,7 @@ def test_direct_link_report_ack_and_operator_mark(
                 if "RESCUED" in line:
                     break
             # The operator changes their mind (the console's Confirm): the robot reopens it.
-            mark = subprocess.run(
-                [
-                    sys.executable, "-m", "hq.cli", "mark", "--db", str(hq.db),
-                    "--robot", "1", "--victim", str(victim_id), "--confirmed",
-                ],
-                capture_output=True, text=True, timeout=60,
-            )  # fmt: skip
-            assert mark.returncode == 0, mark.stderr
+            mark(hq.db, 1, victim_id, "confirmed")
             while True:
                 line = hq.wait_line(
                     f"report robot 1 victim {victim_id} seq", deadline - time.monotonic()

@@ -9,15 +9,13 @@ from __future__ import annotations
 import json
 import re
 import signal
-import subprocess
-import sys
 import time
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from hqproc import ack_for
+from hqproc import ack_for, mark, start_companion
 from test_hq_e2e import HqProcess, start_hq  # noqa: F401  (the fixture)
 
 from fusion.types import TrackState, Urgency
@@ -66,35 +64,16 @@ def test_end_to_end_the_robot_says_the_hq_number_after_the_hq_answered(
 ) -> None:
     hq = start_hq()
     with LiveSim(preset("light"), patrol_first_victim=True, speed_m_s=0.25) as sim:
-        cfg = tmp_path / "companion.toml"
-        cfg.write_text(
-            f'[vehicle]\nurl = "{sim.vehicle_url}"\n'
-            f'[hq]\nurl = "udpout:127.0.0.1:{hq.port}"\ntunnel = false\nresend_initial_s = 0.5\n'
-            f'[camera]\nsource = "{sim.camera_source}"\n'
-            f'[paths]\nstate_dir = "{tmp_path / "state"}"\n'
-            "[coverage]\nperiod_s = 1.0\n"
+        proc, log = start_companion(
+            tmp_path, sim.vehicle_url, sim.camera_source, hq.port, "[coverage]\nperiod_s = 1.0\n"
         )
-        log = tmp_path / "companion.log"
-        with log.open("wb") as out:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
-                stdout=out,
-                stderr=subprocess.STDOUT,
-            )
         try:
             line = hq.wait_line("report robot 1 victim", 60.0)
             victim_id = int(re.search(r"victim (\d+)", line).group(1))  # type: ignore[union-attr]
             with Registry(hq.db) as reg:
                 hq_id = reg.hq_id_of(1, victim_id)
             assert hq_id is not None
-            mark = subprocess.run(
-                [
-                    sys.executable, "-m", "hq.cli", "mark", "--db", str(hq.db),
-                    "--robot", "1", "--victim", str(victim_id), "--rescued",
-                ],
-                capture_output=True, text=True, timeout=60,
-            )  # fmt: skip
-            assert mark.returncode == 0, mark.stderr
+            mark(hq.db, 1, victim_id, "rescued")
             wanted = f"announce: R1 victim RESC{hq_id:02d} RESCUED"
             deadline = time.monotonic() + 30.0
             while wanted not in log.read_text():
