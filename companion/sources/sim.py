@@ -20,10 +20,10 @@ import numpy as np
 
 from companion.sources.base import (
     CameraError,
+    ColourSource,
     F,
     Frame,
     ThreadedSource,
-    _Grabbed,
     decode_image,
     mono_minus_unix_s,
 )
@@ -79,14 +79,11 @@ class SimStream(ThreadedSource[bytes, F]):
         self._sock.close()
 
 
-class SimSource(SimStream[Frame]):
+class SimSource(SimStream[Frame], ColourSource[bytes]):
     """Colour frames from the scenarios camera server at host:port."""
 
     def _decode(self, payload: bytes) -> np.ndarray | None:
         return decode_image(payload)
-
-    def _frame(self, decoded: np.ndarray, grabbed: _Grabbed[bytes]) -> Frame:
-        return Frame(decoded, grabbed.t_mono_s, grabbed.t_unix_s, grabbed.index)
 
 
 def encode_sim_frame(jpeg: bytes, t_unix_s: float) -> bytes:
