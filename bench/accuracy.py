@@ -9,7 +9,7 @@ recorded with ``scenarios.record.record`` (the thermal camera's frames beside th
 colour ones, fixed world seed and start time, the whole lawnmower route as the
 rover drives it, around tall debris, piles on people and the people themselves (``scenarios.pathplan``), 5 frames/s at
 640x480), replayed (in one
-worker process per CPU, each scenario whole) through ``companion.replay.replay`` with the recorded camera.toml as the whole
+worker process per CPU, each scenario whole) through ``companion.commands.replay.replay`` with the recorded camera.toml as the whole
 configuration (every other key at its default), and scored with
 ``scenarios.score.score`` (Hungarian matching, 1 m gate). Per scenario: recall,
 recall of the victims that came into view (``recall_in_view``: at least 150 body
@@ -137,8 +137,8 @@ from typing import Any
 
 import numpy as np
 
+from companion.commands.replay import replay, result_document
 from companion.config import load_config
-from companion.replay import replay, result_document
 from fusion.camera import CameraModel
 from scenarios.camera import default_camera
 from scenarios.record import record

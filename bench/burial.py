@@ -57,9 +57,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from companion.commands.detect import read_image
 from companion.config import DetectorConfig, PoseLandmarks
-from companion.detectcmd import read_image
-from companion.vision import Detector, DetectorUnavailable, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import Detector, DetectorUnavailable
 from companion.vision.visibility import assess
 from fusion.types import Urgency
 

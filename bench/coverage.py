@@ -55,7 +55,8 @@ from bench.accuracy import SUITE, SUITE_FPS, Scenario
 from bench.sim_burial import _victim
 from companion.config import DetectorConfig
 from companion.coverage import COLOUR_LIT, CoverageMapper
-from companion.vision import FrameGeometry, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import FrameGeometry
 from companion.vision.thermal import ThermalDetector
 from companion.vision.thermal_params import ThermalDetectorParams
 from fusion.camera import CameraModel

@@ -2,7 +2,7 @@
 
 Missions of the accuracy suite (whole lawnmower searches of 12 x 8 m worlds, the
 colour camera at the suite's frame rate, rendered by the simulator), the map built
-as the service builds it, and companion/coverage_sender.py sending it with the
+as the service builds it, and companion/reporting/coverage_sender.py sending it with the
 default ``[coverage]`` (300 B/s, every 10 s; and at 600 B/s) on the mission's clock. The HQ's side
 answers every piece 0.2 s after it was sent; "lossy" loses 10 % of the pieces and
 10 % of the answers (seeded). Each piece and each answer is encoded by the project's
@@ -21,7 +21,7 @@ from bench.accuracy import SUITE, SUITE_FPS
 from bench.coverage import _pose
 from companion.config import CoverageConfig
 from companion.coverage import CoverageMapper, SharedGrid
-from companion.coverage_sender import CoverageSender
+from companion.reporting.coverage_sender import CoverageSender
 from fusion.coverage import CoverageDelta
 from fusion.params import GeolocationParams
 from fusion.types import Sensor

@@ -140,7 +140,7 @@ def run(mission_s: float = MISSION_S) -> dict[str, object]:
         unix_minus_mono = time.time() - time.monotonic()
         with (out / "companion.log").open("wb") as log:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+                [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 preexec_fn=lambda: _pin_to(companion_core),

@@ -28,7 +28,7 @@ A mission confirms few victims in a few minutes, so the same path is also timed
 under steady load ("steady"): a robot (hq.simrobot, in TUNNEL to the same rover
 router, radio and rescue-hq) sends a report of a new victim every 0.5 s through
 mavlink_io.reliable.Outbox (resent after 1 s, as the companion does) and, in the
-run with pictures, keeps companion.pictures.PictureSender busy with the mission's
+run with pictures, keeps companion.reporting.pictures.PictureSender busy with the mission's
 JPEGs one after the other, with the reporter thread's rule: reports first,
 pictures only when no report is due, at the default 1000 B/s; 60 s without and 60 s
 with pictures, twice, alternated (the machine is shared), pooled.
@@ -54,8 +54,8 @@ import cv2
 import numpy as np
 
 from companion.config import PicturesConfig
-from companion.pictures import PictureSender
-from companion.store import StoredPicture
+from companion.reporting.pictures import PictureSender
+from companion.storage.store import StoredPicture
 from hq.simrobot import SimRobot
 from mavlink_io import picture
 from mavlink_io.reliable import Outbox
@@ -206,7 +206,7 @@ def _mission(pictures: bool, mission_s: float) -> Run:
         log = out / "companion.log"
         with log.open("wb") as f:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+                [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
                 stdout=f,
                 stderr=subprocess.STDOUT,
                 preexec_fn=lambda: os.sched_setaffinity(0, {_companion_core()}),

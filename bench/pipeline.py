@@ -44,14 +44,14 @@ import cv2
 import numpy as np
 
 from companion.calibration import camera_model
+from companion.commands.replay import LOOKAHEAD_S
 from companion.config import load_config
 from companion.pipeline import Pipeline, ThermalEye
-from companion.replay import LOOKAHEAD_S
-from companion.reporting import ReportPolicy
+from companion.reporting.policy import ReportPolicy
 from companion.sources.base import Frame, mono_minus_unix_s
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_folder import read_thermal_png
-from companion.vision import make_detector
+from companion.vision.backends import make_detector
 from companion.vision.thermal import ThermalDetector
 from fusion.pose import PoseHistory
 from fusion.tracker import VictimTracker

@@ -47,9 +47,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from companion.commands.detect import read_image
 from companion.config import DetectorConfig
-from companion.detectcmd import read_image
-from companion.vision import Detector, DetectorUnavailable, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import Detector, DetectorUnavailable
 from fusion.types import Detection
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "images"
@@ -152,7 +153,7 @@ def count_photos(detector: Detector) -> dict[str, Any]:
 _RSS_SCRIPT = """
 import re, sys, cv2
 from companion.config import Config
-from companion.vision import make_detector
+from companion.vision.backends import make_detector
 cv2.setNumThreads(1)
 det = make_detector(Config().detector)
 det.detect(cv2.imread(sys.argv[1]), None, 0.0)

@@ -41,7 +41,8 @@ from typing import Any
 import numpy as np
 
 from companion.config import DetectorConfig
-from companion.vision import FrameGeometry, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import FrameGeometry
 from companion.vision.visibility import assess
 from fusion.camera import CameraModel
 from fusion.errors import GeolocationRejected

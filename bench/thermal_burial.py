@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from companion.vision import FrameGeometry
+from companion.vision.base import FrameGeometry
 from companion.vision.thermal import ThermalDetector
 from companion.vision.visibility import assess
 from fusion.types import Detection, Urgency

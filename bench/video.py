@@ -1,4 +1,4 @@
-"""Live video encoder: CPU share of libx264 at the default settings (companion.video).
+"""Live video encoder: CPU share of libx264 at the default settings (companion.reporting.video).
 
 The Pi 5 has no hardware H.264 encoder, so the stream costs CPU: rendered 640x480
 warehouse frames of a rover driving its route, with boxes and labels drawn, scaled
@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from companion.config import VideoConfig
-from companion.video import H264Encoder, Label, Shot, draw
+from companion.reporting.video import H264Encoder, Label, Shot, draw
 from fusion.types import Urgency
 from scenarios.motion import Trajectory
 from scenarios.render import Renderer

@@ -37,8 +37,10 @@ import cv2
 import numpy as np
 
 from companion.config import DetectorConfig
-from companion.vision import Detector, FrameGeometry, assess, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import Detector, FrameGeometry
 from companion.vision.enhance import Enhancer
+from companion.vision.visibility import assess
 from fusion.errors import GeolocationRejected
 from fusion.geolocate import geolocate
 from fusion.params import GeolocationParams

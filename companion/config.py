@@ -317,7 +317,7 @@ class VideoConfig:
 
 @dataclass(frozen=True)
 class PicturesConfig:
-    """Each confirmed victim's evidence picture for rescue-hq (companion/pictures.py)."""
+    """Each confirmed victim's evidence picture for rescue-hq (companion/reporting/pictures.py)."""
 
     enabled: bool = True
     max_bytes: int = 6000  # the JPEG's size at most (quality, then scale, are lowered)
@@ -341,7 +341,7 @@ class PicturesConfig:
 
 @dataclass(frozen=True)
 class CoverageConfig:
-    """The searched-area map's transport to rescue-hq (companion/coverage_sender.py)."""
+    """The searched-area map's transport to rescue-hq (companion/reporting/coverage_sender.py)."""
 
     rate_bytes_s: float = 300.0  # its bytes a second at most on the links (after pictures)
     period_s: float = 10.0  # the changed cells are gathered and sent this often at most
@@ -356,7 +356,7 @@ class CoverageConfig:
 @dataclass(frozen=True)
 class LooksConfig:
     """Closer looks: short GUIDED detours to a candidate the companion cannot settle
-    (companion/looks.py, docs/LOOKS.md). Off unless enabled here or by RC_LOOK_ON."""
+    (companion/looks/, docs/LOOKS.md). Off unless enabled here or by RC_LOOK_ON."""
 
     enabled: bool = False
     view_min_m: float = 1.0  # the viewpoint is this far from the candidate at least...

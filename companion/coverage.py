@@ -230,7 +230,7 @@ def footprint(
 
 class SharedGrid(CoverageGrid):
     """The service's grid: the processing thread adds looks, the reporter thread reads
-    deltas for the HQ (companion/coverage_sender.py); a lock keeps a delta from
+    deltas for the HQ (companion/reporting/coverage_sender.py); a lock keeps a delta from
     reading an array that a look is growing. Everything else stays on the processing
     thread."""
 

@@ -24,10 +24,11 @@ import numpy as np
 
 from companion.config import Config
 from companion.coverage import LIT_LUMA
-from companion.reporting import Decision, ReportPolicy
-from companion.sources import Frame
+from companion.reporting.policy import Decision, ReportPolicy
+from companion.sources.base import Frame
 from companion.sources.thermal import ThermalFrame
-from companion.vision import Detector, FrameGeometry, assess
+from companion.vision.base import Detector, FrameGeometry
+from companion.vision.visibility import assess
 from fusion.camera import CameraModel, rotation_zyx
 from fusion.errors import GeolocationRejected, PoseUnavailable
 from fusion.geolocate import geolocate, in_view

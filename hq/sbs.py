@@ -57,8 +57,6 @@ from fusion.types import TrackState, Urgency
 from hq.view import HqVictim
 from mavlink_io.statustext import RETIRED_LABEL, URGENCY_LABEL, callsign
 
-__all__ = ["callsign"]  # re-exported: the label the robots' announcements use too
-
 log = logging.getLogger(__name__)
 
 DEFAULT_PORT = 30003  # dump1090's SBS-1 port, and QGC's default ADSB server port

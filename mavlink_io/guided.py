@@ -1,6 +1,6 @@
 """Taking an ArduPilot Rover off its mission for a moment and giving it back.
 
-The companion's closer looks (companion/looks.py) need four commands and three
+The companion's closer looks (companion/looks/machine.py) need four commands and three
 things the autopilot reports; the MAVLink side of both is here:
 
 - ``set_mode``: COMMAND_LONG MAV_CMD_DO_SET_MODE (custom mode, answered by

@@ -312,7 +312,7 @@ def run_chaos(
             [
                 sys.executable,
                 "-m",
-                "companion.cli",
+                "companion.commands.cli",
                 "run",
                 "--config",
                 str(_companion_config(out, sim, state_dir)),

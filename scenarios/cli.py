@@ -218,13 +218,13 @@ def _cmd_sheet(args: argparse.Namespace, world: World) -> int:
 
 
 def _cmd_rover(args: argparse.Namespace, world: World) -> int:
-    from companion.stopsignals import StopSignals
+    from companion.service.stopsignals import StopSignals
     from scenarios.camserver import CameraServer, FrameServer, ThermalCameraServer
     from scenarios.render import Renderer
     from scenarios.rover import SimRover
     from scenarios.thermal import ThermalRenderer
 
-    signals = StopSignals()  # not Event.set in a handler: see companion/stopsignals.py
+    signals = StopSignals()  # not Event.set in a handler: see companion/service/stopsignals.py
     signals.install()
     rover = SimRover(world, args.link, time_scale=args.time_scale, speed_m_s=args.speed_m_s)
     servers: list[FrameServer] = []

@@ -3,7 +3,7 @@
 By default the demo is deterministic: the simulated rover's mission is recorded in
 simulated time (``scenarios.record``: frames and the autopilot's telemetry, the
 same for a seed on every machine), the companion's own pipeline processes every
-frame of it as on the Pi (``companion.replay``: the default person detector,
+frame of it as on the Pi (``companion.commands.replay``: the default person detector,
 geolocation, tracker, reporting policy), and each report it decides goes, in
 order, as a RESCUE_VICTIM_REPORT over UDP to a real ``rescue-hq`` child process,
 which stores, merges and acknowledges it (resent until acknowledged). A fixed seed
@@ -39,9 +39,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from companion.commands.missionmap import MapTruth, MapVictim, draw_mission_map
+from companion.commands.replay import ReplayReport, replay
 from companion.config import load_config
-from companion.missionmap import MapTruth, MapVictim, draw_mission_map
-from companion.replay import ReplayReport, replay
 from fusion.coverage import CoverageGrid
 from fusion.types import TrackState
 from hq import coverage as hq_coverage
@@ -352,7 +352,7 @@ def _run_live(
                 stdout=None, stderr=hq_log, env=env,  # its live table (plain lines off a TTY)
             )  # fmt: skip
             companion = subprocess.Popen(
-                [python, "-m", "companion.cli", "run", "--config", str(cfg)],
+                [python, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
                 stdout=c_log, stderr=subprocess.STDOUT, env=env,
             )  # fmt: skip
         route: list[tuple[float, float]] = []

@@ -141,7 +141,7 @@ def start_companion(
     log = tmp_path / "companion.log"
     with log.open("wb") as out:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+            [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
             stdout=out,
             stderr=subprocess.STDOUT,
         )

@@ -2,7 +2,7 @@
 
 Both sides are their real parts: the HQ's registry (actions numbered, answers
 recorded, the state the console shows: hq.view) on a SQLite file, and the robot's
-saved state (companion.state), ledger, tracker and ``Ground`` on another. The radio
+saved state (companion.storage.recovery), ledger, tracker and ``Ground`` on another. The radio
 between them is modelled: each transmission of an action or of its acknowledgement
 can be lost, the HQ resends what is unanswered in any order, and either side can
 restart. The vehicle and the radio are absent hardware: the vehicle is an object
@@ -20,13 +20,13 @@ from typing import Any
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from companion.announcements import Announcer
 from companion.config import PicturesConfig
-from companion.ground import Ground
-from companion.ledger import Ledger
-from companion.pictures import resume
-from companion.reporting import ReportPolicy
-from companion.state import LoadedState, load_state
+from companion.reporting.announcements import Announcer
+from companion.reporting.pictures import resume
+from companion.reporting.policy import ReportPolicy
+from companion.service.ground import Ground
+from companion.storage.ledger import Ledger
+from companion.storage.recovery import LoadedState, load_state
 from fusion.params import TrackerParams
 from fusion.types import Observation, TrackState
 from hq import wire

@@ -6,8 +6,8 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 
-from companion.announcements import Announcement, Announcements, Conditions
-from companion.reporting import FLAG_URGENCY_CHANGED, ReportPolicy
+from companion.reporting.announcements import Announcement, Announcements, Conditions
+from companion.reporting.policy import FLAG_URGENCY_CHANGED, ReportPolicy
 from fusion.params import TrackerParams
 from fusion.registry import EventKind, TrackEvent, Victim
 from fusion.tracker import VictimTracker
@@ -141,8 +141,8 @@ def test_a_victim_only_the_thermal_camera_saw_is_announced_warm_only() -> None:
     camera alone found them, so nothing may show when the team gets there."""
     import threading
 
-    from companion.announcements import Announcer
-    from companion.reporting import Decision
+    from companion.reporting.announcements import Announcer
+    from companion.reporting.policy import Decision
     from fusion.types import Cue
 
     wake = threading.Event()

@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 import pytest
 
-from companion.cli import _parser
+from companion.commands.cli import _parser
 
-CLI = [sys.executable, "-m", "companion.cli"]
+CLI = [sys.executable, "-m", "companion.commands.cli"]
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

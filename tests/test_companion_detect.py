@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from companion.detectcmd import run_detect
+from companion.commands.detect import run_detect
 from tests.badimages import avi_with_a_damaged_frame, huge_jpeg
 
 URGENCIES = {"LIGHT", "MEDIUM", "CRITICAL", None}
@@ -24,7 +24,7 @@ DETECTION_KEYS = {"box", "score", "cues", "visibility_pct", "urgency"}
 
 def _detect(*args: str | Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "companion.cli", "detect", *map(str, args)],
+        [sys.executable, "-m", "companion.commands.cli", "detect", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=300,

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from companion.config import config_from_dict
-from companion.processing import FrameStats
-from companion.sdnotify import Notifier
-from companion.service import Service
-from companion.store import Store, StoreError
+from companion.service.processing import FrameStats
+from companion.service.run import Service
+from companion.service.sdnotify import Notifier
+from companion.storage.store import Store, StoreError
 from fusion.types import TrackState, Urgency, VictimReport
 from mavlink_io import convert, dialect
 from mavlink_io.reliable import Outbox
@@ -178,7 +178,7 @@ def test_an_ack_never_blocks_the_link_thread_on_a_locked_database(service: Servi
 
 
 def _decision(victim_id: int) -> object:
-    from companion.reporting import Decision
+    from companion.reporting.policy import Decision
     from fusion.registry import Victim
 
     victim = Victim(

@@ -20,7 +20,7 @@ import pytest
 from pymavlink import mavutil
 
 from companion.config import Config, DetectorConfig, ReportingConfig
-from companion.params import Settings
+from companion.service.params import Settings
 from scenarios.live import LiveSim
 from scenarios.world import preset
 
@@ -165,7 +165,7 @@ def _run(cfg: Path, log_path: Path) -> subprocess.Popen[bytes]:
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
     with log_path.open("ab") as log:
         return subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+            [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
             stdout=log,
             stderr=subprocess.STDOUT,
             env=env,

@@ -1,4 +1,4 @@
-"""Evidence pictures on the companion (companion/pictures.py): which view is kept,
+"""Evidence pictures on the companion (companion/reporting/pictures.py): which view is kept,
 how it is cut and encoded, when a better one replaces it, and the sender's rate,
 order and acknowledgements."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from companion.config import PicturesConfig
-from companion.pictures import (
+from companion.reporting.pictures import (
     PictureChooser,
     PictureSender,
     chunk_wire_bytes,
@@ -19,7 +19,7 @@ from companion.pictures import (
     resume,
 )
 from companion.sources.thermal import ThermalFrame
-from companion.store import Store, StoredPicture
+from companion.storage.store import Store, StoredPicture
 from companion.vision.thermal_picture import SCALE_BAR_PX
 from fusion.registry import Victim
 from fusion.types import Detection, Observation, Sensor, TrackState, Urgency

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
+from companion.commands.replay import replay, result_document
 from companion.config import config_from_dict, load_config
-from companion.replay import replay, result_document
 from mavlink_io.tlog import read_tlog
 from scenarios.score import load_report, load_truth, score
 
@@ -27,7 +27,7 @@ def mission(light_patrol: Path) -> Path:
 def _replay_cli(mission: Path, out: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [
-            sys.executable, "-m", "companion.cli", "replay",
+            sys.executable, "-m", "companion.commands.cli", "replay",
             "--config", str(mission / "camera.toml"),
             "--tlog", str(mission / "mission.tlog"),
             "--frames", str(mission / "frames"),
@@ -74,7 +74,7 @@ def test_replay_is_deterministic(mission: Path, cli_output: Path) -> None:
 def test_missing_inputs_are_one_line_errors(mission: Path, tmp_path: Path) -> None:
     result = subprocess.run(
         [
-            sys.executable, "-m", "companion.cli", "replay",
+            sys.executable, "-m", "companion.commands.cli", "replay",
             "--config", str(mission / "camera.toml"),
             "--tlog", str(mission / "mission.tlog"),
             "--frames", str(tmp_path / "nowhere"),
@@ -135,7 +135,7 @@ def _cli(
 ) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [
-            sys.executable, "-m", "companion.cli", "replay",
+            sys.executable, "-m", "companion.commands.cli", "replay",
             "--config", str(mission / "camera.toml"),
             "--tlog", str(tlog), "--frames", str(frames), "--out", str(out),
         ],

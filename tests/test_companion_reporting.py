@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.reporting import (
+from companion.reporting.policy import (
     FLAG_MOVED,
     FLAG_NEW,
     FLAG_REQUESTED,

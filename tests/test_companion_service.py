@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from conftest import NotifySocket
 
+from companion.commands.replay import replay, result_document
 from companion.config import load_config
-from companion.replay import replay, result_document
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.world import preset
@@ -92,7 +92,7 @@ def _start(
         env["WATCHDOG_USEC"] = str(watchdog_usec)
     with log_path.open("ab") as log:  # the child keeps its own descriptor
         return subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg), *extra],
+            [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg), *extra],
             stdout=log,
             stderr=subprocess.STDOUT,
             env=env,

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from companion.config import config_from_dict
-from companion.reporting import Decision
-from companion.sdnotify import Notifier
-from companion.service import Service
-from companion.store import Store, StoreError
+from companion.reporting.policy import Decision
+from companion.service.run import Service
+from companion.service.sdnotify import Notifier
+from companion.storage.store import Store, StoreError
 from fusion.registry import Victim
 from fusion.types import TrackState, Urgency
 from mavlink_io import convert

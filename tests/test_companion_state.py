@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 import pytest
 
-from companion.reporting import ReportPolicy
-from companion.state import EPOCH_SPAN, load_state
-from companion.store import Store
+from companion.reporting.policy import ReportPolicy
+from companion.storage.recovery import EPOCH_SPAN, load_state
+from companion.storage.store import Store
 from fusion.params import TrackerParams
 from fusion.types import Observation
 
@@ -118,7 +118,7 @@ state_dir = "{state}"
     log = tmp_path / "log.txt"
     with log.open("wb") as out:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+            [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
             stdout=out,
             stderr=subprocess.STDOUT,
         )

@@ -1,4 +1,4 @@
-"""SIGTERM/SIGINT handling of the service's main thread (companion/stopsignals.py)."""
+"""SIGTERM/SIGINT handling of the service's main thread (companion/service/stopsignals.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from companion.stopsignals import HANDLED, StopSignals
+from companion.service.stopsignals import HANDLED, StopSignals
 
 
 @pytest.fixture

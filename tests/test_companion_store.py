@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.store import Store, StoreError
+from companion.storage.store import Store, StoreError
 from mavlink_io import dialect
 from mavlink_io.reliable import Outbox
 
@@ -49,7 +49,7 @@ def test_outbox_resends_what_a_killed_process_left(tmp_path: Path) -> None:
     script = textwrap.dedent(
         f"""
         import os, signal
-        from companion.store import Store
+        from companion.storage.store import Store
         from mavlink_io import dialect
         from mavlink_io.reliable import Outbox
         m = dialect.load()

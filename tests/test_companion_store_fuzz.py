@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from companion.store import Store, StoredPicture
+from companion.storage.store import Store, StoredPicture
 from tests.jsonfuzz import fuzz_settings
 from tests.sqlitefuzz import Cell, cell_values, cells, damaged_copy, template_dir
 

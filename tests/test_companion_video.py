@@ -21,7 +21,7 @@ import pytest
 from pymavlink import mavutil
 
 from companion.config import VideoConfig
-from companion.video import H264Encoder, Label, Shot, draw
+from companion.reporting.video import H264Encoder, Label, Shot, draw
 from fusion.types import Urgency
 from scenarios.live import LiveSim
 from scenarios.world import preset
@@ -136,7 +136,7 @@ def test_qgc_discovers_the_camera_and_a_client_decodes_the_stream(
     gcs = Gcs(sim.ground_url)
     with log_path.open("ab") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+            [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
             stdout=log,
             stderr=subprocess.STDOUT,
             env=env,

@@ -18,7 +18,7 @@ from companion.config import Config, ConfigError, config_from_dict, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "systemd" / "config.example.toml"
-CLI = [sys.executable, "-m", "companion.cli"]
+CLI = [sys.executable, "-m", "companion.commands.cli"]
 
 
 def _all_keys(cls: type, prefix: str) -> set[str]:

@@ -22,7 +22,7 @@ from companion.vision.thermal_params import ThermalDetectorParams
 from tests.jsonfuzz import fuzz_settings, json_values
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "companion.cli"]
+CLI = [sys.executable, "-m", "companion.commands.cli"]
 
 
 def _load(tmp_path: Path, toml: str) -> Any:

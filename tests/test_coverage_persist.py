@@ -1,4 +1,4 @@
-"""The coverage grid is saved with the victims and survives a restart (companion/ledger.py).
+"""The coverage grid is saved with the victims and survives a restart (companion/storage/ledger.py).
 
 The state directory, store, tracker and ledger are the real ones on a SQLite file;
 the vehicle is absent hardware (an object with no EKF origin)."""
@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 import test_companion_service as service
 
-from companion.announcements import Announcer
 from companion.config import PicturesConfig
 from companion.coverage import CoverageMapper
-from companion.ledger import COVERAGE_KEY, Ledger
-from companion.pictures import resume
-from companion.reporting import ReportPolicy
-from companion.state import load_state
+from companion.reporting.announcements import Announcer
+from companion.reporting.pictures import resume
+from companion.reporting.policy import ReportPolicy
+from companion.storage.ledger import COVERAGE_KEY, Ledger
+from companion.storage.recovery import load_state
 from fusion.params import GeolocationParams, TrackerParams
 from fusion.types import PoseSample, Sensor
 from mavlink_io import dialect

@@ -27,7 +27,7 @@ def replayed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
     out = tmp_path_factory.mktemp("replay") / "victims.json"
     result = subprocess.run(
         [
-            sys.executable, "-m", "companion.cli", "replay",
+            sys.executable, "-m", "companion.commands.cli", "replay",
             "--config", str(mission / "camera.toml"),
             "--tlog", str(mission / "mission.tlog"),
             "--frames", str(mission / "frames"),

@@ -18,7 +18,7 @@ from hqproc import REJECTED, HqProcess, hq_starter
 
 from companion.config import CoverageConfig
 from companion.coverage import SharedGrid
-from companion.coverage_sender import CoverageSender, piece_wire_bytes
+from companion.reporting.coverage_sender import CoverageSender, piece_wire_bytes
 from fusion.coverage import CoverageDelta
 from hq.registry import Registry
 from hq.simrobot import SimRobot
@@ -207,7 +207,7 @@ def test_check_config_names_a_bad_coverage_setting_in_one_line(
     cfg = tmp_path / "c.toml"
     cfg.write_text(f"[coverage]\n{section}\n")
     run = subprocess.run(
-        [sys.executable, "-m", "companion.cli", "check-config", "--config", str(cfg)],
+        [sys.executable, "-m", "companion.commands.cli", "check-config", "--config", str(cfg)],
         capture_output=True, text=True, timeout=60, cwd=Path(__file__).parents[1],
     )  # fmt: skip
     assert run.returncode != 0

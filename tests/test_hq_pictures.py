@@ -259,9 +259,9 @@ def test_the_companions_thermal_picture_is_chosen_sent_and_delivered_to_a_real_h
     import numpy as np
 
     from companion.config import PicturesConfig
-    from companion.pictures import resume
+    from companion.reporting.pictures import resume
     from companion.sources.thermal import ThermalFrame
-    from companion.store import Store, StoredPicture
+    from companion.storage.store import Store, StoredPicture
     from fusion.registry import Victim
     from fusion.types import Detection, Observation, TrackState, Urgency
 

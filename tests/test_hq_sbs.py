@@ -31,6 +31,7 @@ from hq import sbs
 from hq.registry import Registry
 from hq.simrobot import SimRobot
 from hq.view import hq_victims
+from mavlink_io.statustext import callsign
 
 REPO = Path(__file__).resolve().parents[1]
 ORIGIN = GlobalOrigin(47.397742, 8.545594, 488.0)  # the operator's --origin
@@ -289,10 +290,10 @@ def test_sbs_lines_field_positions() -> None:
 
 
 def test_callsign_fits_eight_characters() -> None:
-    assert sbs.callsign("CRIT", 7) == "CRIT07"
-    assert sbs.callsign("LIGHT", 123) == "LIGHT123"
-    assert sbs.callsign("LIGHT", 1234) == "L1234"
-    assert all(len(sbs.callsign(w, 10**7 - 1)) <= 8 for w in ("CRIT", "MED", "LIGHT", "FALSE"))
+    assert callsign("CRIT", 7) == "CRIT07"
+    assert callsign("LIGHT", 123) == "LIGHT123"
+    assert callsign("LIGHT", 1234) == "L1234"
+    assert all(len(callsign(w, 10**7 - 1)) <= 8 for w in ("CRIT", "MED", "LIGHT", "FALSE"))
 
 
 def test_not_placed_or_not_confirmed_victims_are_not_tracks() -> None:

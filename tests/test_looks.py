@@ -1,4 +1,4 @@
-"""The closer looks' pure decisions (companion/looks.py): which candidate, from where,
+"""The closer looks' pure decisions (companion/looks/choose.py, machine.py): which candidate, from where,
 what a look settled, and the safety rules of the steps, without any link."""
 
 from __future__ import annotations
@@ -13,21 +13,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from companion.config import LooksConfig, config_from_dict, load_config
-from companion.looks import (
+from companion.looks.choose import Kind, candidates, compass, known_free, settlement, viewpoint
+from companion.looks.machine import (
     Face,
     GoTo,
-    Kind,
     LookMachine,
     Phase,
     RequestMissionCurrent,
     Rover,
     SetCurrent,
     SetMode,
-    candidates,
-    compass,
-    known_free,
-    settlement,
-    viewpoint,
 )
 from fusion.registry import Victim
 from fusion.types import Cue, TrackState, Urgency
@@ -392,7 +387,7 @@ def test_check_config_names_a_bad_looks_setting_in_one_line(
     cfg = tmp_path / "companion.toml"
     cfg.write_text(toml)
     result = subprocess.run(
-        [sys.executable, "-m", "companion.cli", "check-config", "--config", str(cfg)],
+        [sys.executable, "-m", "companion.commands.cli", "check-config", "--config", str(cfg)],
         capture_output=True,
         text=True,
         timeout=60,

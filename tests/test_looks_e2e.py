@@ -1,4 +1,4 @@
-"""Closer looks end to end: the companion's look controller (companion/looks_run.py)
+"""Closer looks end to end: the companion's look controller (companion/looks/run.py)
 on a real VehicleLink over UDP on 127.0.0.1 to the simulated ArduPilot Rover, with a
 real VictimTracker and Announcer. The camera is the one part stood in for: while the
 rover is within 1.7 m of the candidate and faces it (within 35 degrees), the test
@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from companion.announcements import Announcer
 from companion.config import LooksConfig
-from companion.looks import Phase
-from companion.looks_run import Looks
+from companion.looks.machine import Phase
+from companion.looks.run import Looks
+from companion.reporting.announcements import Announcer
 from fusion.params import TrackerParams
 from fusion.tracker import VictimTracker
 from fusion.types import Observation, TrackState

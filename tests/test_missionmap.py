@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from companion.missionmap import place_labels
+from companion.commands.missionmap import place_labels
 
 
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> int:
@@ -39,7 +39,7 @@ def test_a_buried_true_victim_is_joined_to_its_uncovered_part(tmp_path) -> None:
     a report there does not look 0.6 m off. None for a whole body."""
     import cv2
 
-    from companion.missionmap import MapTruth, draw_mission_map
+    from companion.commands.missionmap import MapTruth, draw_mission_map
     from fusion.types import Urgency
 
     def draw(visible_ne_m: tuple[float, float] | None):  # type: ignore[no-untyped-def]

@@ -34,7 +34,7 @@ def start_hq(tmp_path: Path) -> Iterator[object]:
 def _companion(cfg: Path, log: Path) -> subprocess.Popen[bytes]:
     with log.open("ab") as out:
         return subprocess.Popen(
-            [sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+            [sys.executable, "-m", "companion.commands.cli", "run", "--config", str(cfg)],
             stdout=out,
             stderr=subprocess.STDOUT,
         )

@@ -15,10 +15,10 @@ import pytest
 
 from companion.config import Config
 from companion.pipeline import Pipeline, ThermalEye
-from companion.reporting import ReportPolicy
-from companion.sources import Frame
+from companion.reporting.policy import ReportPolicy
+from companion.sources.base import Frame
 from companion.sources.thermal import ThermalFrame
-from companion.vision import FrameGeometry
+from companion.vision.base import FrameGeometry
 from fusion.geolocate import geolocate
 from fusion.pose import PoseHistory
 from fusion.registry import EventKind

@@ -1,6 +1,6 @@
 """A power cut on the robot loses no report at the HQ.
 
-The robot's state is the real companion state (companion.state, ledger, SQLite in
+The robot's state is the real companion state (companion.storage.recovery, ledger, SQLite in
 WAL mode). The power cut is injected: the robot runs in a child process with a
 small preloaded library that records, at every fsync/fdatasync, the size of the
 file it made durable; the robot is then killed, and the disk after the cut is the

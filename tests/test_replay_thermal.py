@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from companion.commands.replay import replay, result_document
 from companion.config import load_config
-from companion.replay import replay, result_document
 from scenarios.score import load_report, load_truth, score
 
 
@@ -24,7 +24,7 @@ def mission(light_patrol: Path) -> Path:
 def _replay_cli(mission: Path, out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [
-            sys.executable, "-m", "companion.cli", "replay",
+            sys.executable, "-m", "companion.commands.cli", "replay",
             "--config", str(mission / "camera.toml"),
             "--tlog", str(mission / "mission.tlog"),
             "--frames", str(mission / "frames"),
@@ -63,7 +63,7 @@ def test_thermal_frames_without_a_thermal_section_are_refused_in_one_line(
     colour_only.write_text(text[: text.index("# The thermal camera")])
     result = subprocess.run(
         [
-            sys.executable, "-m", "companion.cli", "replay",
+            sys.executable, "-m", "companion.commands.cli", "replay",
             "--config", str(colour_only),
             "--tlog", str(mission / "mission.tlog"),
             "--frames", str(mission / "frames"),

@@ -14,19 +14,11 @@ import numpy as np
 import pytest
 
 from companion.config import CameraConfig
-from companion.sources import (
-    CameraError,
-    CameraTimeout,
-    EndOfStream,
-    Frame,
-    ReopeningSource,
-    encode_sim_frame,
-    open_camera,
-    open_source,
-    parse_source,
-    write_frame,
-)
-from companion.sources.sim import SimSource
+from companion.sources.base import CameraError, CameraTimeout, EndOfStream, Frame
+from companion.sources.colour_open import open_camera, open_source, parse_source
+from companion.sources.folder import write_frame
+from companion.sources.reopen import ReopeningSource
+from companion.sources.sim import SimSource, encode_sim_frame
 from tests.badimages import avi_with_a_damaged_frame, huge_jpeg
 
 # Clock mapping: time.time() and time.monotonic() are sampled a few microseconds

@@ -14,8 +14,11 @@ import numpy as np
 import pytest
 
 from companion.config import DetectorConfig
-from companion.vision import FrameGeometry, assess, enhance, make_detector, visibility_pct
+from companion.vision.backends import make_detector
+from companion.vision.base import FrameGeometry
+from companion.vision.enhance import enhance
 from companion.vision.synthetic import make_scene
+from companion.vision.visibility import assess, visibility_pct
 from fusion.types import Urgency
 
 SEEDS = range(8)

@@ -17,7 +17,8 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from companion.config import DetectorConfig
-from companion.vision import DetectorUnavailable, FrameGeometry, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import DetectorUnavailable, FrameGeometry
 from companion.vision.dnn import decode, letterbox
 
 INPUT_PX = 320
@@ -155,7 +156,7 @@ def test_letterbox_pads_a_portrait_frame_sideways() -> None:
 
 
 def test_decode_rejects_outputs_that_do_not_fit_the_classes() -> None:
-    from companion.vision import VisionError
+    from companion.vision.base import VisionError
 
     with pytest.raises(VisionError, match="person class ids"):
         decode(np.zeros((1, 6, 100), np.float32), "yolov8", (5,), 0.5)

@@ -22,20 +22,15 @@ from hypothesis import strategies as st
 
 from bench.burial import TEXTURES, measure_level
 from bench.real_images import hits_box
+from companion.commands.detect import read_image
 from companion.config import DetectorConfig
-from companion.detectcmd import read_image
-from companion.vision import FrameGeometry, assess, make_detector, models, ssd
-from companion.vision.people import (
-    FACE_SPEC,
-    PALM_SPEC,
-    POSE_SPEC,
-    PeopleDetector,
-    PeopleParams,
-    _add_body,
-    _Body,
-    _box_overlap,
-    _mask_overlap,
-)
+from companion.vision import models, ssd
+from companion.vision.backends import make_detector
+from companion.vision.base import FrameGeometry
+from companion.vision.people import PeopleDetector
+from companion.vision.people_bodies import Body, add_body, box_overlap, mask_overlap
+from companion.vision.people_params import FACE_SPEC, PALM_SPEC, POSE_SPEC, PeopleParams
+from companion.vision.visibility import assess
 from fusion.camera import CameraModel
 from fusion.params import GeolocationParams
 from fusion.types import Detection, PoseSample, Urgency
@@ -85,7 +80,7 @@ def test_cli_with_no_models_exits_2_with_one_line(tmp_path: Path) -> None:
     image = tmp_path / "a.png"
     cv2.imwrite(str(image), np.zeros((48, 64, 3), np.uint8))
     proc = subprocess.run(
-        [sys.executable, "-m", "companion.cli", "detect", str(image)],
+        [sys.executable, "-m", "companion.commands.cli", "detect", str(image)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -335,13 +330,13 @@ def test_the_seen_share_caps_what_the_mask_says() -> None:
     assert a is not None and a.urgency is Urgency.CRITICAL
 
 
-def _lying(x0: int, x1: int, score: float, cues: set[str], box_x0: float) -> _Body:
+def _lying(x0: int, x1: int, score: float, cues: set[str], box_x0: float) -> Body:
     """A body lying across rows 120-220 with its mask from x0 to x1; its landmarks'
     box may reach out of the frame (``box_x0`` < 0)."""
     mask = np.zeros((480, 640), bool)
     mask[120:220, x0:x1] = True
     pts = np.zeros((33, 2))
-    return _Body(
+    return Body(
         score, cues, mask.astype(np.uint8), mask, pts, np.array([(x0 + x1) / 2, 170.0]),
         (box_x0, 105.0, float(x1), 235.0),
     )  # fmt: skip
@@ -356,14 +351,14 @@ def test_one_body_cut_by_the_frame_is_one_detection() -> None:
     same = PeopleParams().same_body_overlap
     head = _lying(0, 100, 0.7, {"person", "landmarks", "mask", "face"}, box_x0=-230.0)
     whole = _lying(0, 340, 0.9, {"person", "landmarks", "mask"}, box_x0=-2.0)
-    assert _box_overlap(head.box, whole.box) < same
-    bodies: list[_Body] = [head]
-    _add_body(bodies, whole, same)
+    assert box_overlap(head.box, whole.box) < same
+    bodies: list[Body] = [head]
+    add_body(bodies, whole, same)
     assert len(bodies) == 1 and bodies[0] is whole and "face" in whole.cues
     left = _lying(0, 300, 0.9, {"person", "landmarks", "mask"}, box_x0=0.0)
     right = _lying(320, 640, 0.8, {"person", "landmarks", "mask"}, box_x0=320.0)
     bodies = [left]
-    _add_body(bodies, right, same)
+    add_body(bodies, right, same)
     assert len(bodies) == 2 and bodies[0] is left and bodies[1] is right
 
 
@@ -377,16 +372,16 @@ _BOX = st.tuples(
 def test_masks_are_compared_inside_the_boxes_as_over_the_whole_frame(
     box_a: tuple[int, int, int, int], box_b: tuple[int, int, int, int], seed: int
 ) -> None:
-    """``_mask_overlap`` looks only where the two boxes meet (a body's box holds its
+    """``mask_overlap`` looks only where the two boxes meet (a body's box holds its
     mask): the same share as comparing the whole frames, boxes out of the frame too."""
     rng = np.random.default_rng(seed)
 
-    def body(box: tuple[int, int, int, int]) -> _Body:
+    def body(box: tuple[int, int, int, int]) -> Body:
         x, y, w, h = box
         mask = np.zeros((480, 640), bool)
         inside = mask[max(0, y) : max(0, y + h), max(0, x) : max(0, x + w)]
         inside[...] = rng.random(inside.shape) < 0.6
-        return _Body(
+        return Body(
             0.9, {"person"}, mask.astype(np.uint8), mask, None, np.zeros(2),
             (x + 0.4, y + 0.3, x + w - 0.2, y + h - 0.7),
         )  # fmt: skip
@@ -394,7 +389,7 @@ def test_masks_are_compared_inside_the_boxes_as_over_the_whole_frame(
     a, b = body(box_a), body(box_b)
     smaller = min(int(a.mask.sum()), int(b.mask.sum()))
     want = float((a.mask & b.mask).sum()) / smaller if smaller else 0.0
-    assert _mask_overlap(a, b) == pytest.approx(want)
+    assert mask_overlap(a, b) == pytest.approx(want)
 
 
 def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> None:
@@ -402,7 +397,7 @@ def test_heatmaps_alone_never_make_a_body_critical(detector: PeopleDetector) -> 
     mostly covered) is capped at ``seen_share_floor``: MEDIUM, not CRITICAL."""
     mask = np.zeros((480, 640), bool)
     mask[200:260, 100:400] = True
-    body = _Body(
+    body = Body(
         0.9, {"person", "landmarks", "mask"}, mask.astype(np.uint8), mask, None,
         np.array([250.0, 230.0]), (100.0, 200.0, 400.0, 260.0), seen_share=0.0,
     )  # fmt: skip

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from companion.config import DetectorConfig
-from companion.vision import make_detector
+from companion.vision.backends import make_detector
 
 GREY_OR_THERMAL_NEGATIVES = [
     "skimage_gravel_gray.png",

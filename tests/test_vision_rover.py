@@ -16,8 +16,10 @@ import numpy as np
 import pytest
 
 from companion.config import DetectorConfig
-from companion.vision import FrameGeometry, assess, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import FrameGeometry
 from companion.vision.grid import GridParams, floor_grid
+from companion.vision.visibility import assess
 from fusion.geolocate import geolocate
 from fusion.params import GeolocationParams
 from fusion.types import PoseSample, Urgency

@@ -238,7 +238,7 @@ main() {
 
     say "detect and replay on the host"
     start=$(date +%s)
-    run_side host "$DATA" "$OUT/mission" "$OUT/host" host_python -m companion.cli
+    run_side host "$DATA" "$OUT/mission" "$OUT/host" host_python -m companion.commands.cli
     echo $(( $(date +%s) - start )) >"$OUT/host/run_seconds"
 
     say "detect and replay on aarch64 (emulated)"

@@ -316,7 +316,7 @@ def count_model_runs(argv: Sequence[str], stdout: TextIO) -> tuple[Counter[str],
     model's runs, by file name."""
     import ai_edge_litert.interpreter as litert
 
-    from companion.cli import main as companion_main
+    from companion.commands.cli import main as companion_main
 
     runs: Counter[str] = Counter()
     real = litert.Interpreter

@@ -60,7 +60,7 @@ class FloorParams:
 
 
 class BodyLike(Protocol):
-    """What the floor point needs of a body (people._Body)."""
+    """What the floor point needs of a body (people_bodies.Body)."""
 
     mask: np.ndarray  # bool, visible body pixels
     points: np.ndarray | None  # (33, 2) landmarks in frame pixels, when trusted

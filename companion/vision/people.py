@@ -44,13 +44,11 @@ import functools
 import itertools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from companion.config import PoseLandmarks
 from companion.vision import models, seenparts, ssd
 from companion.vision.base import FrameGeometry
 from companion.vision.enhance import Enhancer
@@ -60,171 +58,24 @@ from companion.vision.floorpoint import (
     KNEES,
     N_BODY_POINTS,
     SHOULDERS,
-    FloorParams,
     floor_pixel,
+)
+from companion.vision.people_bodies import Body, View, add_body, bbox
+from companion.vision.people_params import (
+    BODY_WIDTH_SHARE,
+    FACE_HEIGHT_SHARE,
+    FACE_SPEC,
+    HAND_CROP_SCALE,
+    HAND_CROP_SHIFT,
+    HAND_LENGTH_SHARE,
+    HAND_PX,
+    LANDMARK_PX,
+    PALM_SPEC,
+    POSE_SPEC,
+    PeopleParams,
 )
 from companion.vision.tflite import Model, RotatedRect, letterbox, to_range
 from fusion.types import Detection
-
-POSE_SPEC = ssd.SsdSpec(224, (8, 16, 32, 32, 32), 4, 0.5)
-PALM_SPEC = ssd.SsdSpec(192, (8, 16, 16, 16), 7, 0.5)
-FACE_SPEC = ssd.SsdSpec(192, (4,), 6, 0.5, interpolated_scale=False)
-
-LANDMARK_PX = 256
-HAND_PX = 224  # the hand landmark model's input
-HAND_CROP_SCALE = 2.6  # MediaPipe's palm-to-hand crop: 2.6 palm boxes,
-HAND_CROP_SHIFT = 0.5  # shifted half a box towards the fingers
-
-# Proportions of an adult (share of standing height): for a body's own extent in a
-# photo, and for the whole body behind a lone face or hand.
-BODY_WIDTH_SHARE = 0.26  # 0.45 m of 1.7 m
-FACE_HEIGHT_SHARE = 0.13  # chin to hairline, as the face detector boxes it
-HAND_LENGTH_SHARE = 0.11
-
-
-@dataclass(frozen=True)
-class PeopleParams:
-    person_min_score: float = 0.5  # BlazePose person detector
-    landmark_min_flag: float = 0.5  # landmark model's "a person is in this crop"
-    face_min_score: float = 0.75  # a face that stands alone (supporting: person_min_score)
-    # A palm that stands alone (no body around it) is a hand when the hand landmark
-    # model, on the crop around it, flags a hand (``hand_min_flag``). The palm
-    # detector alone scores 0.5-0.86 on the simulator's exposed hands and on its
-    # skin-coloured planks and wedges alike; the hand flag reads 0.00-0.03 on every
-    # plank and 0.84-0.98 on the hands seen near (scenario suite, 2026-11-27). Before,
-    # a lone palm needed a score of 0.8 and no check: no hand-only victim was found,
-    # and lowering the score alone found 1-3 of 7 with 1-4 more false victims.
-    palm_min_score: float = 0.5
-    hand_min_flag: float = 0.5
-    max_hand_checks: int = 3  # hand landmark crops per frame (~5 ms each on one core)
-    part_support_score: float = 0.5  # a face or palm that supports a body
-    mask_threshold: float = 0.5
-    # A body's visible share is at most the share of its main joints whose heatmaps
-    # peak at ``seen_min_logit`` or more (seenparts.py: the mask fills in covered
-    # parts, the heatmaps do not), and that cap is never below ``seen_share_floor``:
-    # the heatmaps alone make a body MEDIUM at most, never CRITICAL (a skeleton the
-    # model fits badly has every joint weak on a body it sees whole); only a small
-    # visible area, of a mask or a lone part, does. None: the mask alone.
-    seen_min_logit: float | None = -0.4
-    seen_share_floor: float = 0.25
-    # Which BlazePose landmark model: "full" (~14 ms a body on one core here) or
-    # "lite" (~10 ms), as MediaPipe's model_complexity 1 and 0. Same outputs. On the
-    # real burial benchmark (2026-11-28) full finds more buried people (at 50 / 5 %
-    # visible 20 / 12 of 24, lite 19 / 9) and reads more of them right (80 % covered:
-    # 16 of 16, lite 14 of 16); docs/VISION.md "Which landmark model".
-    landmarks: PoseLandmarks = "full"
-    max_bodies: int = 4  # landmark crops per frame (each ~14 ms on one core, lite ~10)
-    # Extra detector passes, ~10 ms each. The person detector sees the whole frame at
-    # 224 px and is trained on mostly upright people: a body lying across the view is
-    # found more often in the frame turned by 90 degrees (clockwise, anticlockwise),
-    # and a body far along the floor (from a low rover camera, a thin strip near the
-    # horizon) only in a zoomed tile of that band of the frame. ``extra_passes``: how
-    # many of those run per frame, taking turns (a live camera sees a body on many
-    # frames); a large number runs all of them on every frame, as for a single photo.
-    extra_passes: int = 1
-    # The face (~5 ms) and palm (~12 ms) detectors look for the small exposed parts of
-    # a buried person. Live they take turns, one per frame, as the extra passes do (a
-    # hand in view for a second is still searched five times at 10 frames/s); False
-    # runs both on every frame, as for a single photo. After a frame with a hand, the
-    # palm detector runs on the next frame too (a rover passing an exposed hand sees
-    # it for a second or so: every frame of it counts towards a victim).
-    parts_take_turns: bool = True
-    far_tiles: bool = True  # tiles of the far floor band (needs the frame's geometry)
-    # Without a geometry (a photo) the far band is unknown: a 2:1 tile of this share of
-    # the frame's width at its centre zooms a small or distant body by 1/share.
-    centre_tile_share: float = 0.75
-    far_band_mpp: float = 0.0045  # floor farther than this many metres per pixel
-    tile_min_px: int = 160  # a tile's height at least; its width is twice its height
-    floor: FloorParams = field(default_factory=FloorParams)  # where a body lies (floorpoint.py)
-    silhouette_fill: float = 0.75  # body silhouette / length x width rectangle
-    # The models see better on the enhanced frame only when the scene is dark (on
-    # well-lit real frames enhancement costs recall: bench/real_images.py).
-    enhance_below_luma: float = 0.25
-    lone_person_weight: float = 0.75  # a person detection no other cue supports
-    min_part_mask_share: float = 0.2  # a lone part's box covered by the person mask for "mask"
-    attached_body_share: float = 6.0  # person mask around a part this many boxes: a body
-    same_body_overlap: float = 0.6  # two passes' bodies overlapping this much: one body
-
-
-@dataclass(frozen=True)
-class _View:
-    """Where the person detector looks: the frame or a tile (x0, y0, x1, y1) of it,
-    turned by ``cv2.ROTATE_*`` or not."""
-
-    turn: int | None
-    tile: tuple[int, int, int, int] | None
-
-
-@dataclass
-class _Body:
-    score: float
-    cues: set[str]
-    region: np.ndarray  # uint8 mask of the body's region in the frame (crop or part box)
-    mask: np.ndarray  # bool, visible body pixels
-    points: np.ndarray | None  # (33, 2) landmarks in frame pixels, when trusted
-    hip_px: np.ndarray  # (2,) hip centre
-    box: tuple[float, float, float, float]  # x0, y0, x1, y1
-    part: str = ""  # "face" / "hand" for a lone part
-    part_extent_px: float = 0.0  # the part's size, for a body's extent in a photo
-    seen: np.ndarray | None = None  # (33,) each landmark's visibility, 0..1
-    # The share of the body in the frame its joint heatmaps see (seenparts.py).
-    seen_share: float | None = None
-
-
-def _bbox(mask: np.ndarray) -> tuple[float, float, float, float]:
-    ys, xs = np.nonzero(mask)
-    return float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)
-
-
-def _box_overlap(
-    a: tuple[float, float, float, float], b: tuple[float, float, float, float]
-) -> float:
-    """The intersection of two boxes (x0, y0, x1, y1) over the smaller one's area."""
-    iw = min(a[2], b[2]) - max(a[0], b[0])
-    ih = min(a[3], b[3]) - max(a[1], b[1])
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    smaller = min((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1]))
-    return iw * ih / smaller if smaller > 0 else 0.0
-
-
-def _mask_overlap(a: _Body, b: _Body) -> float:
-    """The pixels two bodies' masks share over the smaller mask's pixels. A body's
-    box holds its mask, so only the boxes' intersection is compared (a full-frame
-    comparison of two masks costs 0.3 ms at 640x480)."""
-    h, w = a.mask.shape
-    x0 = max(0, math.floor(max(a.box[0], b.box[0])))
-    y0 = max(0, math.floor(max(a.box[1], b.box[1])))
-    x1 = min(w, math.ceil(min(a.box[2], b.box[2])))
-    y1 = min(h, math.ceil(min(a.box[3], b.box[3])))
-    if x1 <= x0 or y1 <= y0:
-        return 0.0
-    shared = int(np.count_nonzero(a.mask[y0:y1, x0:x1] & b.mask[y0:y1, x0:x1]))
-    if shared == 0:
-        return 0.0
-    smaller = min(int(np.count_nonzero(a.mask)), int(np.count_nonzero(b.mask)))
-    return shared / smaller
-
-
-def _add_body(bodies: list[_Body], new: _Body, same_overlap: float) -> None:
-    """Add ``new`` unless it is a body already found by another pass (boxes or masks
-    overlapping by ``same_overlap`` of the smaller): then the one with landmarks,
-    else the higher score, stays, with the cues of both. The masks decide where a
-    body cut by the frame has its landmarks' box reach far out of it (a 10-minute
-    recorded mission: a head at the frame's edge, its box 56 % inside the whole
-    body's, its mask 96 %, made a second detection of one body)."""
-    for i, b in enumerate(bodies):
-        if _box_overlap(b.box, new.box) < same_overlap and _mask_overlap(b, new) < same_overlap:
-            continue
-        keep, drop = (
-            (b, new)
-            if (b.points is not None, b.score) >= (new.points is not None, new.score)
-            else (new, b)
-        )
-        keep.cues |= drop.cues
-        bodies[i] = keep
-        return
-    bodies.append(new)
 
 
 def _mean_luma(image_bgr: np.ndarray) -> float:
@@ -295,27 +146,27 @@ class PeopleDetector:
             out.append((d, box, lb.to_image(d.keypoints)))
         return out
 
-    def _passes(self, geometry: FrameGeometry | None, w: int, h: int) -> list[_View]:
+    def _passes(self, geometry: FrameGeometry | None, w: int, h: int) -> list[View]:
         """The views this frame is searched in: the whole frame, then extra passes."""
         p = self.params
-        extras: list[_View] = [
-            _View(cv2.ROTATE_90_CLOCKWISE, None),
-            _View(cv2.ROTATE_90_COUNTERCLOCKWISE, None),
+        extras: list[View] = [
+            View(cv2.ROTATE_90_CLOCKWISE, None),
+            View(cv2.ROTATE_90_COUNTERCLOCKWISE, None),
         ]
         if p.far_tiles and geometry is not None:
-            extras += [_View(None, t) for t in self._far_tiles(geometry, w, h)]
+            extras += [View(None, t) for t in self._far_tiles(geometry, w, h)]
         elif 0.0 < p.centre_tile_share < 1.0:
             tw = round(w * p.centre_tile_share)
             th = min(h, tw // 2)
             x0, y0 = (w - tw) // 2, (h - th) // 2
-            extras.append(_View(None, (x0, y0, x0 + tw, y0 + th)))
+            extras.append(View(None, (x0, y0, x0 + tw, y0 + th)))
         if p.extra_passes >= len(extras):
-            return [_View(None, None), *extras]
+            return [View(None, None), *extras]
         chosen = []
         for _ in range(max(0, p.extra_passes)):
             chosen.append(extras[self._frame % len(extras)])
             self._frame += 1
-        return [_View(None, None), *chosen]
+        return [View(None, None), *chosen]
 
     def _far_tiles(
         self, geometry: FrameGeometry, w: int, h: int
@@ -340,7 +191,7 @@ class PeopleDetector:
         return [(round(i * step), top, round(i * step) + width, top + height) for i in range(n)]
 
     def _persons(
-        self, rgb: np.ndarray, view: _View
+        self, rgb: np.ndarray, view: View
     ) -> list[tuple[ssd.SsdDetection, np.ndarray, np.ndarray]]:
         """Person detections (box and keypoints in frame pixels) in one view: the frame
         or a tile of it, as it is or turned by 90 degrees (``cv2.ROTATE_*``)."""
@@ -389,7 +240,7 @@ class PeopleDetector:
         kp: np.ndarray,
         box: np.ndarray,
         judge_seen: bool = True,
-    ) -> _Body:
+    ) -> Body:
         p = self.params
         hw = rgb.shape[:2]
         rect = _rect_from_keypoints(kp)
@@ -428,7 +279,7 @@ class PeopleDetector:
         combined = score if points is None else 1.0 - (1.0 - score) * (1.0 - 0.5 * flag)
         if cues == {"person"}:
             combined *= p.lone_person_weight  # the detector alone fires on empty rooms
-        return _Body(
+        return Body(
             combined,
             cues,
             region,
@@ -454,7 +305,7 @@ class PeopleDetector:
         # The whole-frame segmentation only measures bodies without landmarks and lone
         # parts: run on first use (most frames need none of it: ~4 ms saved).
         seg = functools.cache(lambda: self._segmentation(rgb))
-        bodies: list[_Body] = []
+        bodies: list[Body] = []
         for view in self._passes(geometry, w, h):
             for d, box, kp in self._persons(rgb, view):
                 if len(bodies) >= p.max_bodies:
@@ -467,7 +318,7 @@ class PeopleDetector:
                 # found on real frames at 12 % light, 4 read MEDIUM by their seen
                 # share, none by the mask alone (2026-11-27). There the mask decides.
                 body = self._body(rgb, seg, d.score, kp, box, judge_seen=not dark)
-                _add_body(bodies, body, p.same_body_overlap)
+                add_body(bodies, body, p.same_body_overlap)
         parts = []
         turn = self._parts_turn
         self._parts_turn += 1
@@ -525,7 +376,7 @@ class PeopleDetector:
         seg: Callable[[], np.ndarray],
         w: int,
         h: int,
-    ) -> _Body:
+    ) -> Body:
         x0, y0 = max(0.0, float(box[0])), max(0.0, float(box[1]))
         x1, y1 = min(float(w), float(box[2])), min(float(h), float(box[3]))
         region = np.zeros((h, w), np.uint8)
@@ -539,8 +390,8 @@ class PeopleDetector:
             if body is not None:
                 # The part belongs to a body the person detector missed (too near, cut
                 # by the frame): the body is what is visible, not the part alone.
-                bx0, by0, bx1, by1 = _bbox(body)
-                return _Body(
+                bx0, by0, bx1, by1 = bbox(body)
+                return Body(
                     score, cues, body.astype(np.uint8), body, None,
                     np.array([(bx0 + bx1) / 2, (by0 + by1) / 2]), (bx0, by0, bx1, by1),
                 )  # fmt: skip
@@ -548,7 +399,7 @@ class PeopleDetector:
             mask = region > 0  # the part's box is what is seen of it
         extent = max(x1 - x0, y1 - y0)
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-        return _Body(score, cues, region, mask, None, centre, (x0, y0, x1, y1), kind, extent)
+        return Body(score, cues, region, mask, None, centre, (x0, y0, x1, y1), kind, extent)
 
     def _attached_body(
         self, seg: np.ndarray, part_mask: np.ndarray, box_area: float
@@ -566,7 +417,7 @@ class PeopleDetector:
             return None
         return body
 
-    def _own_extent_area(self, b: _Body) -> float:
+    def _own_extent_area(self, b: Body) -> float:
         """A whole body's pixels from the body's own extent (images without geometry)."""
         p = self.params
         if b.points is not None:
@@ -589,7 +440,7 @@ class PeopleDetector:
         return max(1.0, length * length * BODY_WIDTH_SHARE * p.silhouette_fill)
 
     def _detection(
-        self, b: _Body, geometry: FrameGeometry | None, t_mono_s: float, w: int, h: int
+        self, b: Body, geometry: FrameGeometry | None, t_mono_s: float, w: int, h: int
     ) -> Detection | None:
         x0, y0 = max(0.0, b.box[0]), max(0.0, b.box[1])
         x1, y1 = min(float(w), b.box[2]), min(float(h), b.box[3])

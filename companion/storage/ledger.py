@@ -11,7 +11,7 @@ applied operator action, is durable (synchronous=FULL): a power cut cannot undo
 what the HQ may have heard. The ledger also keeps the newest operator action
 applied to each victim (by the HQ's action_seq), saved with the tracker, so an
 older action that arrives late is never applied over a newer one
-(companion/ground.py), across restarts too. The coverage grid (where the robot has
+(companion/service/ground.py), across restarts too. The coverage grid (where the robot has
 looked, companion/coverage.py) is saved in the same commits, when it changed.
 """
 
@@ -24,11 +24,11 @@ from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import Any
 
-from companion.announcements import Announcer
 from companion.coverage import SharedGrid
-from companion.pictures import Candidate, PictureChooser, PictureSender
-from companion.reporting import Decision, ReportPolicy
-from companion.store import Store, StoredPicture, StoreError
+from companion.reporting.announcements import Announcer
+from companion.reporting.pictures import Candidate, PictureChooser, PictureSender
+from companion.reporting.policy import Decision, ReportPolicy
+from companion.storage.store import Store, StoredPicture, StoreError
 from fusion.coverage import CoverageError
 from fusion.tracker import VictimTracker
 from mavlink_io import convert

@@ -4,16 +4,16 @@
 (docs/ARCHITECTURE.md):
 - vehicle link (mavlink_io.VehicleLink): telemetry in, our HEARTBEAT out;
 - HQ link (optional, mavlink_io.HqLink): acknowledgements and operator actions;
-- camera (companion/capture.py): frames into a one-slot mailbox (a newer frame
+- camera (companion/service/capture.py): frames into a one-slot mailbox (a newer frame
   replaces an unprocessed one; the drop is counted);
-- thermal camera (companion/capture.py, only with a ``[thermal]`` section): the
+- thermal camera (companion/service/capture.py, only with a ``[thermal]`` section): the
   same, into the mailbox's thermal slot;
-- processing (companion/processing.py): operator actions and ground requests
-  (companion/ground.py), the pipeline, persistence (companion/ledger.py), systemd
+- processing (companion/service/processing.py): operator actions and ground requests
+  (companion/service/ground.py), the pipeline, persistence (companion/storage/ledger.py), systemd
   watchdog;
-- reporter (companion/reporter.py): outbox sends and resends, then evidence
+- reporter (companion/service/reporter.py): outbox sends and resends, then evidence
   pictures at a bounded rate, announcements (rate-limited), health conditions (HQ
-  link, disk) and RESCUE_STATUS (companion/status.py).
+  link, disk) and RESCUE_STATUS (companion/service/status.py).
 
 The processing thread commits a frame's consequences (tracker, what was reported,
 the new reports and their outbox entries) in one SQLite transaction; the outbox
@@ -33,30 +33,32 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from companion import coverage_sender as coverage_transport
-from companion import pictures
-from companion.announcements import Announcer
 from companion.calibration import camera_model
-from companion.capture import Capture, FrameMailbox, recording_dir
 from companion.config import Config
-from companion.ground import Ground
-from companion.ledger import Ledger
-from companion.links import Links
-from companion.livevideo import LiveVideo
-from companion.looks_run import Looks
-from companion.params import Settings
+from companion.looks.run import Looks
 from companion.pipeline import Pipeline, ThermalEye
-from companion.processing import FaultInjection, FrameStats, Processing
-from companion.reporter import Reporter
-from companion.reporting import ReportPolicy
-from companion.sdnotify import Notifier
-from companion.sources import Frame, open_camera, write_frame
+from companion.reporting import coverage_sender as coverage_transport
+from companion.reporting import pictures
+from companion.reporting.announcements import Announcer
+from companion.reporting.policy import ReportPolicy
+from companion.service.capture import Capture, FrameMailbox, recording_dir
+from companion.service.ground import Ground
+from companion.service.links import Links
+from companion.service.livevideo import LiveVideo
+from companion.service.params import Settings
+from companion.service.processing import FaultInjection, FrameStats, Processing
+from companion.service.reporter import Reporter
+from companion.service.sdnotify import Notifier
+from companion.service.status import Status
+from companion.sources.base import Frame
+from companion.sources.colour_open import open_camera
+from companion.sources.folder import write_frame
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_folder import write_thermal_frame
 from companion.sources.thermal_open import open_thermal
-from companion.state import load_state
-from companion.status import Status
-from companion.vision import make_detector
+from companion.storage.ledger import Ledger
+from companion.storage.recovery import load_state
+from companion.vision.backends import make_detector
 from companion.vision.thermal import ThermalDetector
 from mavlink_io import coverage as mavcoverage
 from mavlink_io import dialect
@@ -100,7 +102,7 @@ class Service:
         state = load_state(config.paths.state_dir, config.tracker, self.policy)
         self.store, self.tracker = state.store, state.tracker
         self._state_problem = state.problem  # announced once the threads run
-        # Parameters set from the ground override the config file's values (companion/params.py).
+        # Parameters set from the ground override the config file's values (companion/service/params.py).
         self.settings = Settings(
             config, self.store.get("params"), self._apply_settings, self._save_settings
         )

@@ -1,7 +1,7 @@
 """Requests from the ground, answered on the processing thread, which owns the
 tracker, the policy, the detector and the store.
 
-The link threads only queue what they hear (companion/service.py routes it):
+The link threads only queue what they hear (companion/service/run.py routes it):
 operator actions from the HQ (RESCUE_OPERATOR_ACTION: applied and committed with
 the reports they cause, then acknowledged; a duplicate is acknowledged again,
 never applied twice; one that cannot be applied is acknowledged REJECTED), and
@@ -11,8 +11,8 @@ that number with the tracker, across restarts): an older one that arrives late (
 lost frame resent) is acknowledged REJECTED, not applied, so the HQ, which shows
 the newest action the robot did not refuse, ends where the robot is; and
 PARAM_* and COMMAND_LONG: the parameter protocol of the companion's settings
-(companion/params.py over mavlink_io/params.py) and the camera requests of QGC
-(companion/livevideo.py).
+(companion/service/params.py over mavlink_io/params.py) and the camera requests of QGC
+(companion/service/livevideo.py).
 """
 
 from __future__ import annotations
@@ -22,11 +22,11 @@ import queue
 import time
 from types import ModuleType
 
-from companion.announcements import Announcer
-from companion.ledger import Ledger
-from companion.links import Links
-from companion.livevideo import LiveVideo
-from companion.reporting import Decision, ReportPolicy
+from companion.reporting.announcements import Announcer
+from companion.reporting.policy import Decision, ReportPolicy
+from companion.service.links import Links
+from companion.service.livevideo import LiveVideo
+from companion.storage.ledger import Ledger
 from fusion.tracker import VictimTracker
 from fusion.types import TrackState
 from mavlink_io import dialect, statustext

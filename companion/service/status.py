@@ -2,7 +2,7 @@
 
 RESCUE_STATUS to the HQ and a ``STATUS=`` line to systemd every
 ``status_period_s``, with the health checks of the direct HQ link and the state
-disk at that period (each change announced once, companion/announcements.py); the
+disk at that period (each change announced once, companion/reporting/announcements.py); the
 vehicle link's loss and return (announced); an INFO summary for journald every
 30 s; and, while no autopilot answers, what the service waits for and on which
 link. It reads the processing thread's figures only through ``FrameStats`` and
@@ -19,12 +19,12 @@ import time
 from collections import Counter
 from types import ModuleType
 
-from companion.announcements import Announcer
 from companion.config import Config
-from companion.links import Links
-from companion.pictures import PictureSender
-from companion.processing import Processing
-from companion.sdnotify import Notifier
+from companion.reporting.announcements import Announcer
+from companion.reporting.pictures import PictureSender
+from companion.service.links import Links
+from companion.service.processing import Processing
+from companion.service.sdnotify import Notifier
 from mavlink_io.hqlink import HqLink
 from mavlink_io.linkspec import parse_link
 from mavlink_io.reliable import Outbox

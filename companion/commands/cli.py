@@ -3,7 +3,7 @@
 Exit status: 0 success (or stopped by SIGTERM/SIGINT), 1 runtime failure, 2 bad
 configuration or usage (systemd does not restart it: RestartPreventExitStatus=2),
 3 the state directory cannot be created or written (a corrupt state file is moved
-aside and the service starts afresh in a new ID epoch: companion/state.py).
+aside and the service starts afresh in a new ID epoch: companion/storage/recovery.py).
 """
 
 from __future__ import annotations
@@ -193,8 +193,8 @@ def _models(action: str, folder: Path | None) -> int:
 
 
 def _detect(args: argparse.Namespace) -> int:
-    from companion.detectcmd import run_detect
-    from companion.vision import VisionError
+    from companion.commands.detect import run_detect
+    from companion.vision.base import VisionError
 
     config = None
     if args.config is not None:
@@ -214,7 +214,8 @@ def _missing_devices(config: Config) -> list[str]:
     """What the config names on this machine that is not there: a camera device,
     video file or frames folder, a serial port. ``run`` waits for a serial port or a
     camera that may appear later; ``check-config`` is the pre-flight check and fails."""
-    from companion.sources import CameraError, parse_source
+    from companion.sources.base import CameraError
+    from companion.sources.colour_open import parse_source
     from mavlink_io.linkspec import parse_link
 
     problems: list[str] = []
@@ -245,7 +246,7 @@ def _missing_devices(config: Config) -> list[str]:
 def _missing_thermal(config: Config) -> list[str]:
     """The thermal camera device or frames folder the config names, when it is not
     here (``lepton`` alone: no PureThermal board found by its V4L2 name)."""
-    from companion.sources import CameraError
+    from companion.sources.base import CameraError
     from companion.sources.thermal import parse_thermal_source
     from companion.sources.thermal_live import find_purethermal
 
@@ -295,12 +296,12 @@ def _check_config(config: Config, devices: bool = True) -> int:
 
 
 def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
-    from companion.processing import FaultInjection
-    from companion.sdnotify import Notifier
-    from companion.service import Service
-    from companion.stopsignals import StopSignals
-    from companion.store import StoreError
-    from companion.vision import VisionError
+    from companion.service.processing import FaultInjection
+    from companion.service.run import Service
+    from companion.service.sdnotify import Notifier
+    from companion.service.stopsignals import StopSignals
+    from companion.storage.store import StoreError
+    from companion.vision.base import VisionError
     from mavlink_io.errors import LinkError, SigningError, TlogError
 
     notifier = Notifier()
@@ -327,9 +328,9 @@ def _run(config: Config, delay_s: float, stall_after_s: float | None) -> int:
 def _replay(
     config: Config, tlog: Path, frames: Path, out: Path, thermal_frames: Path | None
 ) -> int:
-    from companion.replay import prepare_output, replay, write_outputs
-    from companion.sources import CameraError
-    from companion.vision import VisionError
+    from companion.commands.replay import prepare_output, replay, write_outputs
+    from companion.sources.base import CameraError
+    from companion.vision.base import VisionError
     from mavlink_io.errors import TlogError
 
     try:

@@ -12,7 +12,7 @@ victim has none, or when it scores ``min_gain`` more than the kept one and
 ``min_interval_s`` has passed: then (only then: the score is cheap, encoding is not)
 it is cropped around the victim's box with half the box of context on each side,
 boxes drawn, scaled to ``width_px`` and encoded as a JPEG of at most ``max_bytes``
-(lower quality first, then a smaller scale). The ledger (companion/ledger.py)
+(lower quality first, then a smaller scale). The ledger (companion/storage/ledger.py)
 commits it with the frame's state and calls ``keep`` after the commit.
 
 A victim the thermal camera sees gets a second picture, its thermal view, chosen
@@ -48,7 +48,7 @@ import numpy as np
 
 from companion.config import PicturesConfig
 from companion.sources.thermal import ThermalFrame
-from companion.store import Store, StoredPicture, StoreError
+from companion.storage.store import Store, StoredPicture, StoreError
 from companion.vision.thermal_picture import colour_range_c, thermal_picture
 from fusion.registry import Victim
 from fusion.types import Detection, Observation, Sensor, TrackState, Urgency

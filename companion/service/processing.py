@@ -1,11 +1,11 @@
 """The processing thread: operator actions and ground requests, then the newest frame.
 
-Each iteration answers what the ground asked (companion/ground.py), reports the
+Each iteration answers what the ground asked (companion/service/ground.py), reports the
 victims again when the EKF origin becomes known (or changes), then takes the newest
 frame from the camera's one-slot mailbox: pipeline (enhance, detect, geolocate,
 track, decide reports), the live video's shot, the evidence pictures (a thermal
 frame: the thermal camera's view of each warm victim), and a commit
-(companion/ledger.py) when there is news or the periodic save is due; then it pings
+(companion/storage/ledger.py) when there is news or the periodic save is due; then it pings
 the systemd watchdog (also when no frame came).
 
 It owns the pipeline (detector, tracker, policy), the picture chooser and the
@@ -22,19 +22,19 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from companion.capture import FrameMailbox
 from companion.config import Config
 from companion.coverage import CoverageMapper
-from companion.ground import Ground
-from companion.ledger import Ledger
-from companion.livevideo import LiveVideo
-from companion.looks_run import Looks
-from companion.pictures import Candidate, PictureChooser
+from companion.looks.run import Looks
 from companion.pipeline import FrameOutcome, Pipeline, PipelineCounters
-from companion.sdnotify import Notifier, watchdog_period_s
-from companion.sources import CameraTimeout, Frame
+from companion.reporting.pictures import Candidate, PictureChooser
+from companion.reporting.video import Label, labels_in_view, shot
+from companion.service.capture import FrameMailbox
+from companion.service.ground import Ground
+from companion.service.livevideo import LiveVideo
+from companion.service.sdnotify import Notifier, watchdog_period_s
+from companion.sources.base import CameraTimeout, Frame
 from companion.sources.thermal import ThermalFrame
-from companion.video import Label, labels_in_view, shot
+from companion.storage.ledger import Ledger
 from fusion.types import GlobalOrigin, TrackState
 from mavlink_io.vehicle import VehicleLink
 
@@ -143,7 +143,7 @@ class Processing:
             self._ground.handle_actions()
             self._ground.handle_requests()
             self._check_origin()
-            if self._looks is not None:  # closer looks (companion/looks_run.py)
+            if self._looks is not None:  # closer looks (companion/looks/run.py)
                 self._looks.tick(lambda: self._tracker.victims(include_tentative=True))
             try:
                 frame = self.mailbox.get(_MAILBOX_WAIT_S)

@@ -27,7 +27,7 @@ from typing import Any
 
 from companion.config import CoverageConfig
 from companion.coverage import SharedGrid
-from companion.store import Store, StoreError
+from companion.storage.store import Store, StoreError
 from fusion.coverage import CoverageDelta
 from mavlink_io import coverage
 

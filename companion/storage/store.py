@@ -7,7 +7,7 @@ What survives a crash or ``kill -9``:
 - the outbox of dialect messages not yet acknowledged by the HQ
   (mavlink_io.reliable.OutboxStore);
 - each victim's evidence picture (the JPEG, its score and number) and whether the
-  HQ has it (companion/pictures.py); its thermal picture likewise, in a table of its
+  HQ has it (companion/reporting/pictures.py); its thermal picture likewise, in a table of its
   own (``thermal_pictures``: a state file from before it simply gains the table).
 
 The processing thread writes a frame's consequences in one transaction
@@ -83,7 +83,7 @@ class StoreError(CompanionError):
 
 class StoreCorrupt(StoreError):
     """The file is not a usable state database (not SQLite, malformed, bad JSON):
-    waiting or restarting will not mend it (companion.state moves it aside)."""
+    waiting or restarting will not mend it (companion.storage.recovery moves it aside)."""
 
 
 _CORRUPT_CODES = (11, 26)  # SQLITE_CORRUPT, SQLITE_NOTADB

@@ -26,7 +26,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from companion.reporting import Decision
+from companion.reporting.policy import Decision
 from fusion.types import VictimReport
 from mavlink_io import statustext
 

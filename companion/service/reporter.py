@@ -5,13 +5,13 @@ reports acknowledged, pictures delivered; the link reader threads never wait for
 the database), sends what the outbox has due (first sends and resends with
 backoff), then, only when no report is due, picture chunks within ``[pictures]
 rate_bytes_s``, then, when no picture chunk could go either, the searched-area
-map's pieces within ``[coverage] rate_bytes_s`` (companion/coverage_sender.py), and
+map's pieces within ``[coverage] rate_bytes_s`` (companion/reporting/coverage_sender.py), and
 the announcements the rate limit lets through as STATUSTEXT.
 It notices the vehicle link's loss and return (both announced; on its return
 every pending report is resent at once), and every ``status_period_s`` sends RESCUE_STATUS, checks the
-HQ link and the disk (companion/status.py) and sends the camera component's
+HQ link and the disk (companion/service/status.py) and sends the camera component's
 heartbeat. It sleeps until the next of these is due, or until woken: by a commit
-(companion/ledger.py, on the processing thread, which stages reports and publishes
+(companion/storage/ledger.py, on the processing thread, which stages reports and publishes
 them after the commit; only this thread sends them), an announcement or an
 acknowledgement.
 """
@@ -24,12 +24,12 @@ import threading
 import time
 from types import ModuleType
 
-from companion.announcements import Announcer
-from companion.coverage_sender import CoverageSender
-from companion.links import Links
-from companion.livevideo import LiveVideo
-from companion.pictures import PictureSender
-from companion.status import Status
+from companion.reporting.announcements import Announcer
+from companion.reporting.coverage_sender import CoverageSender
+from companion.reporting.pictures import PictureSender
+from companion.service.links import Links
+from companion.service.livevideo import LiveVideo
+from companion.service.status import Status
 from mavlink_io import dialect, picture, statustext
 from mavlink_io.codec import MavMessage
 from mavlink_io.reliable import Outbox

@@ -27,17 +27,17 @@ from pathlib import Path
 from typing import Any
 
 from companion.calibration import camera_model
+from companion.commands.missionmap import MapVictim, draw_mission_map
 from companion.config import Config
 from companion.coverage import CoverageMapper, coverage_document
-from companion.missionmap import MapVictim, draw_mission_map
 from companion.pipeline import FrameOutcome, Pipeline, ThermalEye
-from companion.reporting import ReportPolicy
-from companion.sources import CameraError, EndOfStream, Frame
+from companion.reporting.policy import ReportPolicy
+from companion.sources.base import CameraError, EndOfStream, Frame
 from companion.sources.folder import FramesDirSource
 from companion.sources.size import SizedSource
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_folder import ThermalFramesDir
-from companion.vision import make_detector
+from companion.vision.backends import make_detector
 from companion.vision.thermal import ThermalDetector
 from fusion.coverage import CoverageGrid
 from fusion.pose import PoseHistory

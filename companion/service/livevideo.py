@@ -1,4 +1,4 @@
-"""The live video for QGC (companion/video.py) and the camera component that
+"""The live video for QGC (companion/reporting/video.py) and the camera component that
 advertises it (mavlink_io/camera.py).
 
 The camera is its own component on the vehicle link (QGC looks for cameras at
@@ -16,7 +16,7 @@ import math
 from types import ModuleType
 
 from companion.config import Config
-from companion.video import VideoStreamer
+from companion.reporting.video import VideoStreamer
 from fusion.camera import CameraModel
 from mavlink_io.camera import CameraServer, StreamInfo
 from mavlink_io.codec import Codec, MavMessage

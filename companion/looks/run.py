@@ -1,4 +1,4 @@
-"""Closer looks on the live vehicle link: companion/looks.py's steps, sent and heard.
+"""Closer looks on the live vehicle link: companion/looks/machine.py's steps, sent and heard.
 
 ``Looks`` runs on the processing thread (``tick`` after the ground's requests, a few
 times a second), which owns the tracker: it takes the candidates from the tracker's
@@ -21,7 +21,8 @@ from collections.abc import Callable, Sequence
 from typing import Protocol, assert_never
 
 from companion.config import LooksConfig
-from companion.looks import (
+from companion.looks.choose import candidates
+from companion.looks.machine import (
     Command,
     Face,
     GoTo,
@@ -30,7 +31,6 @@ from companion.looks import (
     Rover,
     SetCurrent,
     SetMode,
-    candidates,
 )
 from fusion.registry import Victim
 from mavlink_io import guided

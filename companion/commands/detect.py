@@ -49,9 +49,11 @@ from companion.errors import CompanionError
 from companion.sources.base import CameraError, EndOfStream, decode_image, truncation
 from companion.sources.flir import FlirError, read_flir
 from companion.sources.opencv import VideoFileSource
-from companion.vision import Detector, FrameGeometry, assess, make_detector
+from companion.vision.backends import make_detector
+from companion.vision.base import Detector, FrameGeometry
 from companion.vision.thermal import ThermalDetector, ThermalFind, ThermalResult
 from companion.vision.thermal_picture import thermal_picture
+from companion.vision.visibility import assess
 from fusion.types import Detection, PoseSample, Urgency
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}

@@ -17,14 +17,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Generic, Protocol, TypeVar
 
-from companion.announcements import Announcer
 from companion.config import Config
-from companion.sources import (
-    CameraError,
-    CameraTimeout,
-    EndOfStream,
-    Frame,
-)
+from companion.reporting.announcements import Announcer
+from companion.sources.base import CameraError, CameraTimeout, EndOfStream, Frame
 from companion.sources.thermal import ThermalFrame
 
 log = logging.getLogger(__name__)

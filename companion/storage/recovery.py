@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from companion.reporting import ReportPolicy
-from companion.store import Store, StoreCorrupt, StoreError
+from companion.reporting.policy import ReportPolicy
+from companion.storage.store import Store, StoreCorrupt, StoreError
 from fusion.errors import FusionError
 from fusion.params import TrackerParams
 from fusion.tracker import VictimTracker
