@@ -1,7 +1,8 @@
 """Operator actions to the robots: sent until acknowledged, the answers recorded.
 
-Actions are written to the registry's action table by `rescue-hq mark` or the
-console (another process or thread); ``refresh`` hands new ones to the outbox,
+Actions are written to the registry's action table by `rescue-hq mark`, `look`,
+`looks` or the console (another process or thread): decisions about a victim, a
+closer look at one, and closer looks off or on for a whole robot (victim_id 0); ``refresh`` hands new ones to the outbox,
 which resends each with backoff until its robot answers. An action goes the way
 its robot last spoke to the HQ, and waits until the robot is heard at all.
 """
@@ -84,9 +85,10 @@ class ActionSender:
             if action.action_seq in self._queued:
                 continue
             self._queued.add(action.action_seq)
+            about = "" if action.action.whole_robot else f" victim {action.victim_id}"
             self._event(
                 f"action {action.action_seq}: {action.action.name} robot "
-                f"{action.robot_sysid} victim {action.victim_id} (sending until acknowledged)"
+                f"{action.robot_sysid}{about} (sending until acknowledged)"
             )
             route = self._routes.get(action.robot_sysid)
             self._outbox.submit(

@@ -6,6 +6,8 @@
                     [--web-token-file FILE] [--link-timeout-s T] [-v]
     rescue-hq mark   --db PATH (--robot N --victim ID | --id HQ_ID)
                      (--rescued | --false-alarm | --confirmed)
+    rescue-hq look   --db PATH (--robot N --victim ID | --id HQ_ID)
+    rescue-hq looks  --db PATH --robot N off|on
     rescue-hq export --db PATH --out DIR [--origin LAT,LON,ALT]
     rescue-hq list   --db PATH
     rescue-hq assets fetch|verify
@@ -28,6 +30,10 @@ from hq.cli_registry import (
     export_parser,
     list_command,
     list_parser,
+    look_command,
+    look_parser,
+    looks_command,
+    looks_parser,
     mark_command,
     mark_parser,
 )
@@ -35,7 +41,7 @@ from hq.cli_run import run_command, run_parser
 from hq.output import TerminalWriter, WriterLogHandler
 from mavlink_io.errors import LinkError
 
-_SUBCOMMANDS = ("run", "mark", "export", "list", "assets")
+_SUBCOMMANDS = ("run", "mark", "look", "looks", "export", "list", "assets")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     parsers = {
         "run": (run_parser, run_command),
         "mark": (mark_parser, mark_command),
+        "look": (look_parser, look_command),
+        "looks": (looks_parser, looks_command),
         "export": (export_parser, export_command),
         "list": (list_parser, list_command),
         "assets": (assets_parser, assets_command),

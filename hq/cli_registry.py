@@ -1,5 +1,6 @@
-"""rescue-hq's commands on a registry file, without a running HQ (``mark``, ``export``,
-``list``), and ``assets`` (the console's map library, fetched at set-up)."""
+"""rescue-hq's commands on a registry file, without a running HQ (``mark``, ``look``,
+``looks``, ``export``, ``list``), and ``assets`` (the console's map library, fetched at
+set-up)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from hq.cli_args import (
 )
 from hq.merge import Origins
 from hq.records import OperatorAction
+from hq.registry import Registry
 from hq.view import build, hq_victims
 
 
@@ -38,6 +40,33 @@ def mark_parser() -> argparse.ArgumentParser:
     what.add_argument("--rescued", action="store_true")
     what.add_argument("--false-alarm", action="store_true")
     what.add_argument("--confirmed", action="store_true", help="a real person (reopens)")
+    return p
+
+
+def look_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rescue-hq look",
+        description="Ask a robot to look closer at a victim next (docs/LOOKS.md); the running "
+        "HQ sends it until the robot acknowledges. The robot does it only with closer looks "
+        "on, armed and in AUTO; with looks off it says so and answers REJECTED.",
+    )
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
+    p.add_argument("--robot", type=parse_sysid, help="robot system ID (with --victim)")
+    p.add_argument("--victim", type=int, help="the robot's victim ID (with --robot)")
+    p.add_argument("--id", type=int, dest="hq_id", help="HQ victim ID (every robot's source)")
+    return p
+
+
+def looks_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rescue-hq looks",
+        description="Switch a robot's closer looks off (a look under way is aborted and the "
+        "mission resumed) or on again: what its parameter RC_LOOK_ON does. The running HQ "
+        "sends it until the robot acknowledges.",
+    )
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
+    p.add_argument("--robot", type=parse_sysid, required=True, help="robot system ID")
+    p.add_argument("switch", choices=("off", "on"))
     return p
 
 
@@ -67,9 +96,6 @@ def assets_parser() -> argparse.ArgumentParser:
 
 
 def mark_command(args: argparse.Namespace) -> int:
-    by_source = args.robot is not None or args.victim is not None
-    if by_source == (args.hq_id is not None) or (by_source and None in (args.robot, args.victim)):
-        raise UsageError("mark: give either --robot N --victim ID, or --id HQ_ID")
     action = (
         OperatorAction.RESCUED
         if args.rescued
@@ -77,24 +103,50 @@ def mark_command(args: argparse.Namespace) -> int:
         if args.confirmed
         else OperatorAction.FALSE_ALARM
     )
+    return _record_on_victim("mark", args, action)
+
+
+def look_command(args: argparse.Namespace) -> int:
+    return _record_on_victim("look", args, OperatorAction.LOOK_CLOSER)
+
+
+def _record_on_victim(command: str, args: argparse.Namespace, action: OperatorAction) -> int:
+    """Record ``action`` for one robot's victim, or for every source of an HQ victim."""
+    by_source = args.robot is not None or args.victim is not None
+    if by_source == (args.hq_id is not None) or (by_source and None in (args.robot, args.victim)):
+        raise UsageError(f"{command}: give either --robot N --victim ID, or --id HQ_ID")
     with open_registry(args.db, must_exist=True) as registry:
         if by_source:
             targets = [(args.robot, args.victim)]
         else:
             found = [v for v in hq_victims(registry) if v.hq_id == args.hq_id]
             if not found:
-                raise UsageError(f"mark: no HQ victim {args.hq_id} in {args.db}")
+                raise UsageError(f"{command}: no HQ victim {args.hq_id} in {args.db}")
             targets = list(found[0].sources)
         for robot, victim in targets:
-            try:
-                seq = registry.add_action(robot, victim, action)
-            except KeyError as exc:
-                raise UsageError(f"mark: {exc.args[0]} (in {args.db})") from None
-            print(
-                f"action {seq}: {action.name} robot {robot} victim {victim} recorded; "
-                "the running rescue-hq sends it until the robot acknowledges"
-            )
+            _record(command, args.db, registry, robot, victim, action)
     return EXIT_OK
+
+
+def looks_command(args: argparse.Namespace) -> int:
+    action = OperatorAction.LOOKS_ON if args.switch == "on" else OperatorAction.LOOKS_OFF
+    with open_registry(args.db, must_exist=True) as registry:
+        _record("looks", args.db, registry, args.robot, 0, action)
+    return EXIT_OK
+
+
+def _record(
+    command: str, db: Path, registry: Registry, robot: int, victim: int, action: OperatorAction
+) -> None:
+    try:
+        seq = registry.add_action(robot, victim, action)
+    except KeyError as exc:
+        raise UsageError(f"{command}: {exc.args[0]} (in {db})") from None
+    about = "" if action.whole_robot else f" victim {victim}"
+    print(
+        f"action {seq}: {action.name} robot {robot}{about} recorded; "
+        "the running rescue-hq sends it until the robot acknowledges"
+    )
 
 
 def export_command(args: argparse.Namespace) -> int:

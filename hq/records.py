@@ -1,8 +1,10 @@
 """The HQ's typed records and the one place their values are checked.
 
 Records: a report as it arrives (IncomingReport) and as a victim's source holds it
-(Source), an operator action and the robot's answer (Action), a robot (Robot,
-RobotStatus), and what storing a report did (StoreResult).
+(Source), an operator action and the robot's answer (Action: a decision about a
+victim, a closer look at one, or closer looks off/on for a whole robot), a robot
+(Robot, RobotStatus, with its closer looks' counts), and what storing a report did
+(StoreResult).
 
 Everything the HQ keeps about a victim or a robot passes ``check_report``,
 ``check_origin`` or ``RobotStatus`` twice: once when it arrives on the radio
@@ -65,6 +67,23 @@ class OperatorAction(Enum):
     RESCUED = 1
     FALSE_ALARM = 2
     CONFIRMED = 4  # the operator saw the evidence: a real person (reopens a resolved one)
+    LOOK_CLOSER = 5  # the robot's next closer look goes to this victim (docs/LOOKS.md)
+    LOOKS_OFF = 6  # no more closer looks on this robot (victim_id 0: the whole robot)
+    LOOKS_ON = 7  # closer looks allowed again on this robot (victim_id 0)
+
+    @property
+    def decides_state(self) -> bool:
+        """A decision about the victim's state (what the HQ shows it as)."""
+        return self in (
+            OperatorAction.RESCUED,
+            OperatorAction.FALSE_ALARM,
+            OperatorAction.CONFIRMED,
+        )
+
+    @property
+    def whole_robot(self) -> bool:
+        """About the robot, not a victim: sent with victim_id 0."""
+        return self in (OperatorAction.LOOKS_OFF, OperatorAction.LOOKS_ON)
 
 
 @dataclass(frozen=True)
@@ -212,9 +231,21 @@ def report_from_payload(payload: str) -> VictimReport:
     return check_report(report)
 
 
+STATUS_FLAG_LOOKS_ON = 128  # RESCUE_STATUS_FLAGS_LOOKS_ON
+LOOK_COUNTS = (
+    "looks_made",
+    "looks_confirmed",
+    "looks_rejected",
+    "looks_urgency_changed",
+    "looks_aborted",
+)
+
+
 @dataclass(frozen=True)
 class RobotStatus:
-    """A robot's last RESCUE_STATUS, checked: finite, non-negative numbers."""
+    """A robot's last RESCUE_STATUS, checked: finite, non-negative numbers; the closer
+    looks' counts (0 from a robot older than them) whole, and no more looks settled or
+    aborted than were made."""
 
     uptime_s: float
     fps: float
@@ -224,12 +255,44 @@ class RobotStatus:
     victims_confirmed: int
     victims_tentative: int
     outbox_pending: int
+    looks_made: int = 0
+    looks_confirmed: int = 0
+    looks_rejected: int = 0
+    looks_urgency_changed: int = 0
+    looks_aborted: int = 0
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
             if not (math.isfinite(value) and 0 <= value <= 1e9):
                 raise BadRecord(f"RESCUE_STATUS {f.name} {value!r} is outside 0..1e9")
+        for name in LOOK_COUNTS:
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise BadRecord(f"RESCUE_STATUS {name} {value!r} is not a whole number")
+        ended = sum(getattr(self, name) for name in LOOK_COUNTS[1:])
+        if ended > self.looks_made:
+            raise BadRecord(
+                f"RESCUE_STATUS looks: {ended} settled or aborted of {self.looks_made} made"
+            )
+
+    @property
+    def looks_on(self) -> bool:
+        return bool(self.flags & STATUS_FLAG_LOOKS_ON)
+
+    def look_words(self) -> str:
+        """How people read the closer looks: ``looks on: 3 made, 1 confirmed, 1 aborted``."""
+        line = f"looks {'on' if self.looks_on else 'off'}"
+        if not self.looks_made:
+            return line
+        counts = [
+            (self.looks_confirmed, "confirmed"),
+            (self.looks_rejected, "rejected"),
+            (self.looks_urgency_changed, "urgency changed"),
+            (self.looks_aborted, "aborted"),
+        ]
+        parts = [f"{self.looks_made} made"] + [f"{n} {word}" for n, word in counts if n]
+        return f"{line}: {', '.join(parts)}"
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), allow_nan=False)
@@ -238,6 +301,7 @@ class RobotStatus:
     def from_json(cls, text: str) -> RobotStatus:
         try:
             d: dict[str, Any] = json.loads(text)
+            looks = {name: d.get(name, 0) for name in LOOK_COUNTS}  # 0: stored before them
             return cls(
                 uptime_s=float(d["uptime_s"]),
                 fps=float(d["fps"]),
@@ -247,6 +311,7 @@ class RobotStatus:
                 victims_confirmed=int(d["victims_confirmed"]),
                 victims_tentative=int(d["victims_tentative"]),
                 outbox_pending=int(d["outbox_pending"]),
+                **looks,
             )
         except (ValueError, KeyError, TypeError) as exc:
             raise BadRecord(f"stored status: {exc}") from None

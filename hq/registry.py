@@ -284,14 +284,22 @@ class Registry:
                 db.execute("INSERT OR REPLACE INTO meta VALUES ('default_origin', ?)", (value,))
 
     def add_action(self, robot_sysid: int, victim_id: int, action: OperatorAction) -> int:
-        """Record an operator action; its action_seq. KeyError for an unknown victim."""
+        """Record an operator action; its action_seq. KeyError for an unknown victim, or,
+        for an action about the whole robot (victim_id 0), a robot never heard."""
         with transaction(self._db, self.path) as db:
-            known = db.execute(
-                "SELECT 1 FROM sources WHERE robot_sysid=? AND victim_id=?",
-                (robot_sysid, victim_id),
-            ).fetchone()
-            if known is None:
-                raise KeyError(f"robot {robot_sysid} has reported no victim {victim_id}")
+            if action.whole_robot:
+                if victim_id != 0:
+                    raise KeyError(f"{action.name} is for a whole robot: victim 0, not {victim_id}")
+                known = db.execute("SELECT 1 FROM robots WHERE sysid=?", (robot_sysid,)).fetchone()
+                if known is None:
+                    raise KeyError(f"robot {robot_sysid} has never been heard")
+            else:
+                known = db.execute(
+                    "SELECT 1 FROM sources WHERE robot_sysid=? AND victim_id=?",
+                    (robot_sysid, victim_id),
+                ).fetchone()
+                if known is None:
+                    raise KeyError(f"robot {robot_sysid} has reported no victim {victim_id}")
             self._seed_action_seq()
             cur = db.execute(
                 "INSERT INTO actions (robot_sysid, victim_id, action, created_unix_s)"

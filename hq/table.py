@@ -8,7 +8,8 @@ MEDIUM orange, LIGHT green) when the output is a terminal, plain text otherwise.
 victims are dimmed. ``ACK`` counts operator actions still waiting for the robot's
 acknowledgement. CUES says what saw the person, on any robot: ``body`` (the colour
 camera's person models), ``part`` (only an exposed part: a hand, a face), ``warm``
-(the thermal camera); ``-`` when the robots do not say. Rendering is pure (text in, text out); the app decides when to
+(the thermal camera); ``-`` when the robots do not say. A robot's line ends with its
+closer looks (``looks on: 3 made, 1 confirmed, 1 aborted``). Rendering is pure (text in, text out); the app decides when to
 redraw (at most 2 Hz).
 """
 
@@ -123,7 +124,7 @@ def robot_rows(robots: Sequence[Robot], now_unix_s: float, colour: bool) -> list
             )
             line = (
                 f"{r.sysid:>5} {heard:>7} {st.fps:>5.1f} "
-                f"{st.victims_confirmed:>4} {st.outbox_pending:>6}  {health}"
+                f"{st.victims_confirmed:>4} {st.outbox_pending:>6}  {health}  {st.look_words()}"
             )
         rows.append(_paint(line + "  SILENT", "\x1b[33m", colour) if silent else line)
     if not robots:

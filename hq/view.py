@@ -7,8 +7,8 @@ that saw it (hq.merge.union_cues). Sources a
 robot itself merged into another of its victims (state MERGED) are folded into
 that victim and not shown on their own.
 
-State, in order of precedence: an operator action (acknowledged or still being
-sent; not one the robot REJECTED) or a robot's RESCUED / FALSE_ALARM, then CONFIRMED, NOT_SEEN_RECENTLY,
+State, in order of precedence: an operator decision (rescued, false alarm,
+confirmed; acknowledged or still being sent; not one the robot REJECTED) or a robot's RESCUED / FALSE_ALARM, then CONFIRMED, NOT_SEEN_RECENTLY,
 TENTATIVE.
 """
 
@@ -74,7 +74,8 @@ def _sigma_m(cov: Cov2) -> float:
 
 
 def _state(members: list[Source], actions: list[Action]) -> TrackState:
-    applied = [a for a in actions if not a.rejected]  # the robot refused the others
+    # The robot refused the rejected ones; a closer look decides nothing about the state.
+    applied = [a for a in actions if not a.rejected and a.action.decides_state]
     if applied:
         latest = max(applied, key=lambda a: a.action_seq)
         return _ACTION_STATE[latest.action]

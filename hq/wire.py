@@ -62,7 +62,9 @@ def incoming_report(msg: MavMessage, received_unix_s: float) -> IncomingReport:
 
 
 def status_from_msg(msg: MavMessage) -> RobotStatus:
-    """The checked RESCUE_STATUS; BadMessage for NaN, infinite or negative values."""
+    """The checked RESCUE_STATUS; BadMessage for NaN, infinite or negative values, or
+    more closer looks settled or aborted than made. The look counts are extension
+    fields: a robot older than them sends none, and they read 0."""
     try:
         return RobotStatus(
             uptime_s=float(msg.uptime_s),
@@ -73,6 +75,7 @@ def status_from_msg(msg: MavMessage) -> RobotStatus:
             victims_confirmed=int(msg.victims_confirmed),
             victims_tentative=int(msg.victims_tentative),
             outbox_pending=int(msg.outbox_pending),
+            **{name: int(getattr(msg, name, 0)) for name in records.LOOK_COUNTS},
         )
     except ValueError as exc:
         raise BadMessage(str(exc)) from None
