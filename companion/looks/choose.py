@@ -40,6 +40,7 @@ class Kind(Enum):
     TENTATIVE = "possible victim"
     URGENCY = "victim of uncertain urgency"
     WARM_ONLY = "warm find"
+    ASKED = "victim the operator asked about"  # never found by ``candidates``
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from companion.looks.choose import (
     LIVE_STATES,
     Candidate,
     DrivenPath,
+    Kind,
     PointNE,
     Viewpoint,
     compass,
@@ -133,6 +134,15 @@ class LookCounts:
 
 
 @dataclass
+class _Request:
+    """The operator asked for a closer look at a victim (RESCUE_OPERATOR_ACTION)."""
+
+    track_id: int
+    victim_id: int
+    waiting_s: float  # since when it waits with no look under way
+
+
+@dataclass
 class _Look:
     candidate: Candidate
     view: Viewpoint
@@ -165,13 +175,29 @@ class LookMachine:
         self.counts = LookCounts()
         self.look: _Look | None = None
         self.last: _Look | None = None  # the last look that ended
+        self.request: _Request | None = None  # the operator's victim, ahead of all others
         self._said_not_ardupilot = False
 
     def set_enabled(self, enabled: bool) -> None:
-        """RC_LOOK_ON or the config: switching on also ends a previous take-over."""
+        """RC_LOOK_ON or the config: switching on also ends a previous take-over;
+        switching off also drops the operator's request."""
         self.enabled = enabled
         if enabled:
             self.switched_off = False
+        else:
+            self.request = None
+
+    @property
+    def allowed(self) -> bool:
+        """Looks are on and no take-over switched them off."""
+        return self.enabled and not self.switched_off
+
+    def ask(self, track_id: int, victim_id: int, now_s: float) -> None:
+        """The operator asked for a closer look at this victim: it is the next look,
+        ahead of the companion's own candidates, under the same safety rules and
+        budgets (it may be looked at again). One that cannot start within
+        ``look_budget_s`` of waiting (no look under way) is dropped, and said so."""
+        self.request = _Request(track_id, victim_id, now_s)
 
     @property
     def expected_modes(self) -> frozenset[int]:
@@ -195,6 +221,8 @@ class LookMachine:
             self.path.add(*rover.ne)
         if self.look is None:
             return self._idle(now_s, rover, ap, found, victims)
+        if self.request is not None:  # it waits for this look to end
+            self.request.waiting_s = now_s
         return self._active(now_s, rover, ap, self.look, victims)
 
     # -- starting ----------------------------------------------------------------------
@@ -208,8 +236,13 @@ class LookMachine:
         victims: dict[int, Victim],
     ) -> Step:
         s = self.settings
-        if not (self.enabled and not self.switched_off and rover.connected and found):
-            return [], []
+        if not self.allowed:
+            self.request = None
+        asked, said = self._asked(now_s, victims)
+        if asked is not None:
+            found = [asked]  # the operator's victim first, and alone until it goes
+        if not (self.allowed and rover.connected and found):
+            return [], said
         if ap.heartbeat_s is not None and not ap.ardupilot_rover:
             if self._said_not_ardupilot:
                 return [], []
@@ -226,19 +259,54 @@ class LookMachine:
             return [], []
         avoid = [(v.north_m, v.east_m) for v in victims.values() if v.state in LIVE_STATES]
         for c in found:
-            if c.track_id in self.looked or math.dist(c.ne, here) > s.max_detour_m:
+            again = c.track_id in self.looked and c is not asked  # the operator may ask again
+            if again or math.dist(c.ne, here) > s.max_detour_m:
                 continue
             view = viewpoint(c.ne, list(self.path.points), avoid, here, s)
             if view is None:
                 continue
             self.looked.add(c.track_id)
+            self.request = None
             self.look = _Look(c, view, here, now_s, now_s, sent_s=now_s)
             self.phase = Phase.GUIDED
             self.counts.started += 1
-            what = c.kind.value if c.victim_id == 0 else f"{c.kind.value} (victim {c.victim_id})"
-            line = f"looking closer at a {what} {compass(here, c.ne)} of here"
+            if c is asked:
+                what = f"victim {c.victim_id} (the operator asked)"
+            elif c.victim_id == 0:
+                what = f"a {c.kind.value}"
+            else:
+                what = f"a {c.kind.value} (victim {c.victim_id})"
+            line = f"looking closer at {what} {compass(here, c.ne)} of here"
             return [SetMode(ROVER_GUIDED)], [Say(line, _SEVERITY_NOTICE)]
         return [], []
+
+    def _asked(
+        self, now_s: float, victims: dict[int, Victim]
+    ) -> tuple[Candidate | None, list[Say]]:
+        """The operator's victim as a candidate (None: no request, or dropped: said why)."""
+        r = self.request
+        if r is None:
+            return None, []
+        v = victims.get(r.track_id)
+        why = None
+        if v is None or v.state not in LIVE_STATES:
+            why = "it is no longer tracked" if v is None else f"it is {v.state.name}"
+        elif now_s - r.waiting_s > self.settings.look_budget_s:
+            why = (
+                f"it could not start within {self.settings.look_budget_s:.0f} s (it needs "
+                f"the rover armed in AUTO, within {self.settings.max_detour_m:.0f} m, and a "
+                "viewpoint beside the path driven)"
+            )
+        if why is not None:
+            self.request = None
+            line = f"closer look at victim {r.victim_id} the operator asked for dropped: {why}"
+            return None, [Say(line, _SEVERITY_WARNING)]
+        assert v is not None
+        kind = Kind.ASKED
+        c = Candidate(
+            v.track_id, r.victim_id, kind, v.north_m, v.east_m, v.state, v.urgency, v.cues
+        )
+        return c, []
 
     # -- during a look -----------------------------------------------------------------
 
@@ -430,6 +498,7 @@ class LookMachine:
         """A heartbeat showed a mode the companion did not ask for (the vehicle link's
         thread saw it first): no look starts again until switched on."""
         self.switched_off = True
+        self.request = None
 
     def _end(self, now_s: float) -> None:
         if self.look is not None:

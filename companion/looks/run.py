@@ -9,7 +9,9 @@ heartbeat with a mode the companion did not ask for, it marks the look taken ove
 at once: nothing more is sent, and the next tick ends the look and switches looks
 off (``switch_off``: RC_LOOK_ON is set to 0, which the operator sets to 1 again).
 The lines for people go through the announcer (STATUSTEXT); ``line`` is the count
-of looks and what they settled, for the status.
+of looks and what they settled, for the status, and ``tally`` the same in numbers
+(RESCUE_STATUS). ``ask`` is the HQ operator's "look closer at victim N"
+(companion/service/ground.py hands it over on the processing thread).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Protocol, assert_never
 
 from companion.config import LooksConfig
@@ -40,6 +43,31 @@ from mavlink_io.vehicle import VehicleLink
 log = logging.getLogger(__name__)
 
 _POSE_MAX_AGE_S = 2.0  # an older pose is no position for a look
+
+
+@dataclass(frozen=True)
+class Tally:
+    """What the status says of the looks (RESCUE_STATUS): replaced whole, so the
+    reporter thread reads one consistent value."""
+
+    on: bool = False  # looks allowed now (RC_LOOK_ON and no take-over)
+    made: int = 0
+    confirmed: int = 0
+    rejected: int = 0
+    urgency_changed: int = 0
+    aborted: int = 0
+
+
+def tally(machine: LookMachine) -> Tally:
+    c = machine.counts
+    return Tally(
+        on=machine.allowed,
+        made=c.started,
+        confirmed=c.settled.get("confirmed", 0),
+        rejected=c.settled.get("rejected", 0),
+        urgency_changed=c.settled.get("urgency changed", 0),
+        aborted=sum(c.aborted.values()),
+    )
 
 
 class Announces(Protocol):
@@ -68,6 +96,7 @@ class Looks:
         self.watch.on_foreign_mode = self._foreign_mode
         vehicle.listen(self.watch.on_message)
         self.line = ""  # "2 looks, 1 confirmed, ..." (replaced whole; read by the status)
+        self.tally = tally(self.machine)  # replaced whole; read by the status
         if settings.enabled:
             log.info("closer looks are on (RC_LOOK_ON = 1)")
 
@@ -77,6 +106,25 @@ class Looks:
         if enabled != m.enabled or (enabled and m.switched_off):
             self._announcer.announce(f"closer looks {'on' if enabled else 'off'}", 6)
         m.set_enabled(enabled)
+        self.tally = tally(m)
+
+    def ask(self, victim: Victim) -> bool:
+        """The operator asked for a closer look at ``victim`` (processing thread): it
+        is the next look, when looks are on; with looks off nothing changes and the
+        operator hears that they must switch them on. Whether it was taken."""
+        m = self.machine
+        vid = victim.victim_id
+        if not m.allowed:
+            self._announcer.announce(
+                f"closer looks are off: no look at victim {vid}; the operator must switch "
+                "them on (RC_LOOK_ON = 1, or looks on at the HQ)",
+                4,
+            )
+            return False
+        after = " after the one under way" if m.look is not None else ""
+        m.ask(victim.track_id, vid, self._clock())
+        self._announcer.announce(f"closer look at victim {vid} next{after} (the operator asked)", 6)
+        return True
 
     def _foreign_mode(self, mode: int) -> None:
         """Reader thread: the operator (or a failsafe) changed the mode mid-look."""
@@ -118,6 +166,7 @@ class Looks:
             self._announcer.announce(line.text, line.severity)
         if m.counts.started:
             self.line = m.counts.summary()
+        self.tally = tally(m)
         if m.switched_off and not was_off:
             self._switch_off()
 

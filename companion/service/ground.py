@@ -9,7 +9,10 @@ a decision about a victim (rescued, false alarm, confirmed) only when it is newe
 by the HQ's action_seq, than the last one applied to that person (the ledger keeps
 that number with the tracker, across restarts): an older one that arrives late (a
 lost frame resent) is acknowledged REJECTED, not applied, so the HQ, which shows
-the newest action the robot did not refuse, ends where the robot is; and
+the newest action the robot did not refuse, ends where the robot is; the closer
+looks' actions (docs/LOOKS.md): "no more looks" and "looks on" (victim_id 0) set
+RC_LOOK_ON as QGC would, "look closer at victim N" makes it the next look, or, with
+looks off, only says so (REJECTED, as for a victim unknown or resolved); and
 PARAM_* and COMMAND_LONG: the parameter protocol of the companion's settings
 (companion/service/params.py over mavlink_io/params.py) and the camera requests of QGC
 (companion/service/livevideo.py).
@@ -22,6 +25,8 @@ import queue
 import time
 from types import ModuleType
 
+from companion.looks.choose import LIVE_STATES
+from companion.looks.run import Looks
 from companion.reporting.announcements import Announcer
 from companion.reporting.policy import Decision, ReportPolicy
 from companion.service.links import Links
@@ -31,11 +36,13 @@ from fusion.tracker import VictimTracker
 from fusion.types import TrackState
 from mavlink_io import dialect, statustext
 from mavlink_io.codec import MavMessage
-from mavlink_io.params import ParamServer
+from mavlink_io.params import MAV_PARAM_TYPE_REAL32, ParamServer
 from mavlink_io.reliable import Deduplicator
 from mavlink_io.vehicle import VehicleLink
 
 log = logging.getLogger(__name__)
+
+_LOOK_PARAM = "RC_LOOK_ON"  # companion/service/params.py: the operator's switch of the looks
 
 
 class Ground:
@@ -53,6 +60,7 @@ class Ground:
         links: Links,
         announcer: Announcer,
         m: ModuleType,
+        looks: Looks | None = None,
     ) -> None:
         self._actions = actions
         self._requests = requests
@@ -71,6 +79,12 @@ class Ground:
             m.RESCUE_OPERATOR_ACTION_FALSE_ALARM: TrackState.FALSE_ALARM,
             m.RESCUE_OPERATOR_ACTION_CONFIRMED: TrackState.CONFIRMED,
         }
+        self._looks = looks
+        self._look_actions = {
+            m.RESCUE_OPERATOR_ACTION_LOOK_CLOSER,
+            m.RESCUE_OPERATOR_ACTION_LOOKS_OFF,
+            m.RESCUE_OPERATOR_ACTION_LOOKS_ON,
+        }
 
     def handle_actions(self) -> None:
         m = self._m
@@ -85,6 +99,9 @@ class Ground:
                 result = older
             elif self.dedupe.check(msg):
                 result = m.RESCUE_ACK_RESULT_DUPLICATE
+            elif msg.action in self._look_actions:
+                if not self._look_action(msg):
+                    result = m.RESCUE_ACK_RESULT_REJECTED
             else:
                 decisions = self._apply_action(msg)
                 if decisions is None:
@@ -143,6 +160,60 @@ class Ground:
         self._ledger.action_applied(event.victim.victim_id, msg.action_seq)
         log.info("operator marked victim %d %s", msg.victim_id, state.name)
         return self._policy.decide([event], self._tracker.victims(), now)
+
+    def _look_action(self, msg: MavMessage) -> bool:
+        """The operator's closer-look actions; whether applied. "No more looks" and
+        "looks on" are RC_LOOK_ON set to 0 or 1, through the parameter protocol as
+        QGC's PARAM_SET goes (validated, saved, applied: a look under way is aborted
+        and the mission resumed), and its PARAM_VALUE goes out so QGC shows it. "Look
+        closer at victim N" makes that victim the next look when looks are on."""
+        m = self._m
+        if msg.action == m.RESCUE_OPERATOR_ACTION_LOOK_CLOSER:
+            return self._look_closer(msg)
+        on = msg.action == m.RESCUE_OPERATOR_ACTION_LOOKS_ON
+        if msg.victim_id != 0:
+            log.warning(
+                "operator action %d: looks %s is for the whole robot (victim 0), not victim %d",
+                msg.action_seq,
+                "on" if on else "off",
+                msg.victim_id,
+            )
+            return False
+        server = self._param_server
+        handled = server.handle(
+            m.MAVLink_param_set_message(
+                self._vehicle.sysid,
+                server.component_id,
+                _LOOK_PARAM.encode("ascii"),
+                1.0 if on else 0.0,
+                MAV_PARAM_TYPE_REAL32,
+            )
+        )
+        assert handled is not None  # a PARAM_SET addressed to our component
+        for reply in handled.replies:
+            self._vehicle.send(reply)
+        if handled.refused:  # not expected: 0 and 1 are RC_LOOK_ON's values
+            self._announcer.announce(handled.refused, statustext.MAV_SEVERITY_WARNING)
+            return False
+        log.info("operator action %d: closer looks %s", msg.action_seq, "on" if on else "off")
+        return True
+
+    def _look_closer(self, msg: MavMessage) -> bool:
+        if self._looks is None:
+            log.warning("operator action %d: closer looks are not run here", msg.action_seq)
+            return False
+        try:
+            victim = self._tracker.victim(self._tracker.resolve(msg.victim_id))
+        except KeyError as exc:
+            log.warning("operator action %d: %s", msg.action_seq, exc.args[0])
+            return False
+        if victim.state not in LIVE_STATES:
+            self._announcer.announce(
+                f"no closer look at victim {victim.victim_id}: it is {victim.state.name}",
+                statustext.MAV_SEVERITY_WARNING,
+            )
+            return False
+        return self._looks.ask(victim)
 
     def handle_requests(self) -> None:
         """Answer parameter and camera requests (a setting changed here is applied

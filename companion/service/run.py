@@ -204,7 +204,10 @@ class Service:
             lambda seq, piece: self.links.send_dialect(mavcoverage.piece_msg(m, seq, piece)),
             signed=self.signing is not None,
         )
+        # Closer looks: short GUIDED detours (docs/LOOKS.md); ticked by processing.
+        self.looks = Looks(config.looks, self.vehicle, self.announcer, self._looks_taken_over)
         ground = Ground(
+            looks=self.looks,
             actions=self.actions,
             requests=self.ground_requests,
             tracker=self.tracker,
@@ -217,8 +220,6 @@ class Service:
             announcer=self.announcer,
             m=m,
         )
-        # Closer looks: short GUIDED detours (docs/LOOKS.md); ticked by processing.
-        self.looks = Looks(config.looks, self.vehicle, self.announcer, self._looks_taken_over)
         self.processing = Processing(
             looks=self.looks,
             config=config,
@@ -236,6 +237,7 @@ class Service:
             stop=self.stop,
         )
         status = Status(
+            looks=self.looks,
             config=config,
             vehicle=self.vehicle,
             hq=self.hq,

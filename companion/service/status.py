@@ -1,6 +1,7 @@
 """What the companion says about itself; the reporter thread calls it.
 
-RESCUE_STATUS to the HQ and a ``STATUS=`` line to systemd every
+RESCUE_STATUS to the HQ (with the closer looks' counts and whether they are on,
+from ``Looks.tally``) and a ``STATUS=`` line to systemd every
 ``status_period_s``, with the health checks of the direct HQ link and the state
 disk at that period (each change announced once, companion/reporting/announcements.py); the
 vehicle link's loss and return (announced); an INFO summary for journald every
@@ -20,6 +21,7 @@ from collections import Counter
 from types import ModuleType
 
 from companion.config import Config
+from companion.looks.run import Looks
 from companion.reporting.announcements import Announcer
 from companion.reporting.pictures import PictureSender
 from companion.service.links import Links
@@ -54,7 +56,9 @@ class Status:
         notifier: Notifier,
         started_mono_s: float,
         m: ModuleType,
+        looks: Looks,
     ) -> None:
+        self._looks = looks
         self._config = config
         self._vehicle = vehicle
         self._hq = hq
@@ -92,6 +96,9 @@ class Status:
             flags |= m.RESCUE_STATUS_FLAGS_RECORDING
         if self._signed:
             flags |= m.RESCUE_STATUS_FLAGS_SIGNING
+        looks = self._looks.tally
+        if looks.on:
+            flags |= m.RESCUE_STATUS_FLAGS_LOOKS_ON
         confirmed, tentative = self._processing.counts
         pending = self._outbox.pending_count
         self._links.send_dialect(
@@ -104,6 +111,11 @@ class Status:
                 min(confirmed, 0xFFFF),
                 min(tentative, 0xFFFF),
                 min(pending, 0xFFFF),
+                min(looks.made, 0xFFFF),
+                min(looks.confirmed, 0xFFFF),
+                min(looks.rejected, 0xFFFF),
+                min(looks.urgency_changed, 0xFFFF),
+                min(looks.aborted, 0xFFFF),
             )
         )
         link = (
@@ -112,10 +124,10 @@ class Status:
             else f"waiting for the autopilot on {self._config.vehicle.url}"
         )
         camera = "ok" if camera_ok else "lost"
-        looks = f", {line}" if (line := self._processing.looks_line) else ""
+        made = f", {line}" if (line := self._processing.looks_line) else ""
         self._notifier.status(
             f"{link}, camera {camera}, {fps:.1f} fps ({drop_pct:.0f}% dropped), "
-            f"{confirmed} victims, {pending} unacknowledged{looks}"
+            f"{confirmed} victims, {pending} unacknowledged{made}"
         )
 
     def check_health(self, now: float) -> None:
