@@ -40,7 +40,15 @@ from hq.registry_file import RegistryError
 from hq.registry_rows import PictureKey, cell_float, cell_int
 from hq.view import HqVictim, build, hq_victims
 from hq.web.notes import Notes
-from hq.web.state import LiveRobots, Note, Page, actions_by_source, robots_lost, victim_actions
+from hq.web.state import (
+    LiveRobots,
+    Note,
+    Page,
+    actions_by_source,
+    robot_actions,
+    robots_lost,
+    victim_actions,
+)
 
 log = logging.getLogger(__name__)
 
@@ -148,6 +156,7 @@ class Changes:
         self._report_id: int | None = None  # the newest report row seen
         self._sources: dict[SourceKey, Source] = {}
         self._actions: dict[SourceKey, list[Action]] = {}
+        self.robot_actions: dict[int, Action] = {}  # each robot's newest looks off/on
         self._notes: dict[int, list[Note]] = {}
         self._pictures: dict[PictureKey, tuple[int, float]] = {}
         self._origins: Origins | None = None
@@ -164,7 +173,9 @@ class Changes:
             self._origins = origins
             dirty |= {source.hq_id for source in self._sources.values()}
         dirty |= self._sources_changed()
-        actions = actions_by_source(registry.actions())
+        every = registry.actions()
+        self.robot_actions = robot_actions(every)
+        actions = actions_by_source(every)
         for key in set(actions) | set(self._actions):
             if actions.get(key) != self._actions.get(key):
                 dirty |= self._hq_ids(key)
@@ -378,7 +389,9 @@ class ConsoleDatabase(threading.Thread):
         if key != self._built_for:
             self._changes.update(registry, notes, self._page, robots)
             tracks = self.live.tracks(self._page.paths_held())
-            self._page.set_robots(robots, tracks, now, self.link_timeout_s)
+            self._page.set_robots(
+                robots, tracks, now, self.link_timeout_s, self._changes.robot_actions
+            )
             self._page.builds += 1
             self._built_for = key
         return self._page.json(now, self.link_timeout_s)

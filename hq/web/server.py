@@ -6,7 +6,9 @@ server-sent events; every open page gets each new state from hq.web.feed.Hub);
 connection, runs the pages' writes and builds the states.
 
 Operator actions take the HQ's existing path: they are written to the registry's
-``actions`` table exactly as ``rescue-hq mark`` writes them, and the HQ's main
+``actions`` table exactly as ``rescue-hq mark``, ``look`` and ``looks`` write them
+(a victim's card: confirmed, rescued, false alarm, look closer; a robot's closer
+looks off or on: POST /api/robots/{sysid}/looks), and the HQ's main
 thread (which notices within 0.25 s) sends them to the robots and resends until
 acknowledged.
 
@@ -70,7 +72,9 @@ _ACTIONS = {
     "confirmed": OperatorAction.CONFIRMED,
     "rescued": OperatorAction.RESCUED,
     "false_alarm": OperatorAction.FALSE_ALARM,
+    "look_closer": OperatorAction.LOOK_CLOSER,
 }
+_LOOKS = {"off": OperatorAction.LOOKS_OFF, "on": OperatorAction.LOOKS_ON}
 
 
 class ConsoleError(HqError):
@@ -103,6 +107,13 @@ def _act(hq_id: int, action: OperatorAction) -> Job[list[int]]:
     def job(registry: Registry, _notes: Notes) -> list[int]:
         victim = _find(registry, hq_id)
         return [registry.add_action(r, v, action) for r, v in victim.sources]
+
+    return job
+
+
+def _looks(sysid: int, action: OperatorAction) -> Job[int]:
+    def job(registry: Registry, _notes: Notes) -> int:
+        return registry.add_action(sysid, 0, action)  # KeyError: a robot never heard
 
     return job
 
@@ -212,6 +223,7 @@ class Console:
             Route("/api/events", self._events),
             Route("/api/victims/{hq_id:int}/action", self._action, methods=["POST"]),
             Route("/api/victims/{hq_id:int}/note", self._add_note, methods=["POST"]),
+            Route("/api/robots/{sysid:int}/looks", self._robot_looks, methods=["POST"]),
             Route("/victims/{hq_id:int}/picture", self._picture),
             Route("/export/{name}", self._export_file),
             Route("/api/coverage", self._coverage),
@@ -325,6 +337,25 @@ class Console:
             return JSONResponse({"error": f"not recorded, try again: {exc}"}, status_code=503)
         log.info("console: %s on HQ victim %d -> actions %s", name, hq_id, seqs)
         return JSONResponse({"action_seqs": seqs})
+
+    async def _robot_looks(self, request: Request) -> Response:
+        """The operator's "no more looks" / "looks on" for one robot ({"looks": "off"})."""
+        sysid = int(request.path_params["sysid"])
+        try:
+            switch = (await self._body(request)).get("looks")
+            if switch not in _LOOKS:
+                raise ValueError(f"looks must be off or on, not {switch!r}")
+            if not 1 <= sysid <= 255:
+                raise ValueError(f"system ID {sysid} is outside 1..255")
+            seq = await self._run(_looks(sysid, _LOOKS[switch]))
+        except ValueError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        except KeyError as exc:
+            return JSONResponse({"error": str(exc.args[0])}, status_code=404)
+        except RegistryError as exc:
+            return JSONResponse({"error": f"not recorded, try again: {exc}"}, status_code=503)
+        log.info("console: looks %s on robot %d -> action %d", switch, sysid, seq)
+        return JSONResponse({"action_seq": seq})
 
     async def _add_note(self, request: Request) -> Response:
         hq_id = int(request.path_params["hq_id"])

@@ -9,7 +9,9 @@ are pure.
 
 The list order is the operator's: open victims before resolved ones (RESCUED,
 FALSE_ALARM), then the most urgent first, then the one waiting longest (earliest
-first seen). Positions are in the robots' local frame (metres north/east of the
+first seen). A robot's entry carries its closer looks (on or off, how many made and
+what they settled, from its RESCUE_STATUS) and the operator's newest "no more looks"
+or "looks on" for it with the robot's answer. Positions are in the robots' local frame (metres north/east of the
 EKF origin, where the robots started); the uncertainty ellipse is the 95 % region
 of the fused position's covariance.
 """
@@ -24,13 +26,27 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from fusion.types import Sensor, TrackState
-from hq.records import ACK_RESULT_REJECTED, Action, Robot, RobotStatus, cue_words
+from hq.records import (
+    ACK_RESULT_REJECTED,
+    Action,
+    OperatorAction,
+    Robot,
+    RobotStatus,
+    cue_words,
+)
 from hq.view import HqVictim
 from mavlink_io.statustext import RETIRED_LABEL, URGENCY_LABEL, callsign
 
 CHI2_2DOF_95 = 5.991  # scipy.stats.chi2.ppf(0.95, df=2): the ellipse's scale
 _RESOLVED = (TrackState.RESCUED, TrackState.FALSE_ALARM)
-_ACTION_NAMES = {1: "rescued", 2: "false_alarm", 4: "confirmed"}
+_ACTION_NAMES = {
+    1: "rescued",
+    2: "false_alarm",
+    4: "confirmed",
+    5: "look_closer",
+    6: "looks_off",
+    7: "looks_on",
+}
 
 
 @dataclass
@@ -165,6 +181,13 @@ def _why_refused(a: Action) -> str:
         answer = "REJECTED"
     else:
         answer = f"answered with unknown result {a.ack_result}"
+    if a.action == OperatorAction.LOOK_CLOSER:
+        return (
+            f"{answer}: no closer look (the robot's closer looks are off, or it no longer "
+            "tracks that victim; its message says which)"
+        )
+    if a.action.whole_robot:
+        return f"{answer}: the robot's closer looks are as they were"
     return (
         f"{answer}: the robot does not know that victim, cannot do it, or already applied "
         "a newer decision for it; "
@@ -221,8 +244,10 @@ def _robot(
     track: RobotTrack | None,
     now: float,
     timeout_s: float,
+    looks: Action | None = None,
 ) -> dict[str, Any]:
-    """A robot's entry without its path (Page adds the path, kept as JSON)."""
+    """A robot's entry without its path (Page adds the path, kept as JSON); ``looks``
+    the operator's newest closer looks off/on for it."""
     heard = max(
         robot.last_heard_unix_s if robot else 0.0, track.last_heard_unix_s if track else 0.0
     )
@@ -231,6 +256,7 @@ def _robot(
         "last_heard_unix_s": heard,
         "link_lost": now - heard > timeout_s,
         "status": status,
+        "looks_action": None if looks is None else _action(looks),
         "position": (
             None
             if track is None or track.north_m is None
@@ -292,9 +318,16 @@ class Page:
         return {s: version for s, (version, _) in self._paths.items()}
 
     def set_robots(
-        self, robots: list[Robot], tracks: dict[int, RobotTrack], now: float, timeout_s: float
+        self,
+        robots: list[Robot],
+        tracks: dict[int, RobotTrack],
+        now: float,
+        timeout_s: float,
+        looks: Mapping[int, Action] | None = None,
     ) -> None:
-        """Every robot that reported, and every one with a position."""
+        """Every robot that reported, and every one with a position; ``looks``: each
+        robot's newest closer looks off/on (``robot_actions``)."""
+        looks = looks or {}
         registered = {r.sysid: r for r in robots}
         shown = sorted(set(registered) | {s for s, t in tracks.items() if t.north_m is not None})
         entries = []
@@ -305,7 +338,8 @@ class Page:
                 self._paths[sysid] = (track.path_version, path)
             path_json = self._paths.get(sysid, (0, "[]"))[1] if track is not None else "[]"
             robot = registered.get(sysid)
-            head = _dumps(_robot(sysid, robot, self._status(robot), track, now, timeout_s))
+            status = self._status(robot)
+            head = _dumps(_robot(sysid, robot, status, track, now, timeout_s, looks.get(sysid)))
             entries.append(f'{head[:-1]},"path":{path_json}}}')  # the path spliced in
         self._robots = entries
 
@@ -315,7 +349,10 @@ class Page:
             return None
         held = self._statuses.get(robot.sysid)
         if held is None or held[0] != robot.status:
-            held = (robot.status, asdict(robot.status))
+            entry = asdict(robot.status)
+            entry["looks_on"] = robot.status.looks_on
+            entry["looks"] = robot.status.look_words()  # "looks on: 3 made, 1 confirmed"
+            held = (robot.status, entry)
             self._statuses[robot.sysid] = held
         return held[1]
 
@@ -336,6 +373,15 @@ def actions_by_source(actions: Iterable[Action]) -> dict[tuple[int, int], list[A
     out: dict[tuple[int, int], list[Action]] = {}
     for a in sorted(actions, key=lambda a: a.action_seq):
         out.setdefault((a.robot_sysid, a.victim_id), []).append(a)
+    return out
+
+
+def robot_actions(actions: Iterable[Action]) -> dict[int, Action]:
+    """Each robot's newest action about the whole robot (closer looks off or on)."""
+    out: dict[int, Action] = {}
+    for a in sorted(actions, key=lambda a: a.action_seq):
+        if a.action.whole_robot:
+            out[a.robot_sysid] = a
     return out
 
 
@@ -365,5 +411,5 @@ def snapshot(
         page.set_victim(
             v, victim_actions(v, by_source), by_victim.get(v.hq_id, []), pictures.get(v.hq_id, {})
         )
-    page.set_robots(robots, tracks, now_unix_s, link_timeout_s)
+    page.set_robots(robots, tracks, now_unix_s, link_timeout_s, robot_actions(actions))
     return dict(json.loads(page.json(now_unix_s, link_timeout_s)))

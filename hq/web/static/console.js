@@ -7,7 +7,10 @@
 const URGENCY_COLOUR = { CRITICAL: "#d7191c", MEDIUM: "#e66100", LIGHT: "#1a9641" };
 const RESOLVED_COLOUR = "#7a7a7a";
 const ROBOT_COLOURS = ["#1f5fbf", "#7b3fb5", "#0b7f86", "#b0306e", "#4a5568"];
-const ACTION_LABEL = { confirmed: "confirmed", rescued: "rescued", false_alarm: "false alarm" };
+const ACTION_LABEL = {
+  confirmed: "confirmed", rescued: "rescued", false_alarm: "false alarm", look_closer: "look closer",
+  looks_off: "no more looks", looks_on: "looks on",
+};
 const STATE_LABEL = {
   TENTATIVE: "tentative", CONFIRMED: "confirmed", NOT_SEEN_RECENTLY: "not seen recently",
   RESCUED: "rescued", FALSE_ALARM: "false alarm", MERGED: "merged",
@@ -387,6 +390,7 @@ function makeCard(id) {
         actionButton(card, "confirmed", "Confirm", false),
         actionButton(card, "rescued", "Rescued", true),
         actionButton(card, "false_alarm", "False alarm", true),
+        actionButton(card, "look_closer", "Look closer", false),
         el("button", { class: "act act-note", onclick: (ev) => {
           ev.stopPropagation();
           noteForm.hidden = !noteForm.hidden;
@@ -496,15 +500,64 @@ function drawList() {
   }
   document.getElementById("empty").hidden = state.victims.length > 0;
   const robots = document.getElementById("robots");
-  robots.replaceChildren(...state.robots.map((r) => {
-    const s = r.status;
-    const health = r.link_lost
-      ? (r.last_heard_unix_s > 0 ? `last heard ${clock(r.last_heard_unix_s)}` : "never heard")
-      : s ? `${s.fps.toFixed(1)} fps · outbox ${s.outbox_pending}` : "no status yet";
-    return el("span", { class: `robot${r.link_lost ? " lost" : ""}`, dataset: { robot: String(r.sysid) },
-      style: `border-color:${robotColour(r.sysid)}` },
-    `R${r.sysid} `, el("b", {}, r.link_lost ? "LINK LOST" : "link ok"), ` · ${health}`);
-  }));
+  const lines = state.robots.map(robotLine);
+  if (lines.length !== robots.children.length || lines.some((line, i) => robots.children[i] !== line)) {
+    robots.replaceChildren(...lines);
+  }
+}
+
+// One robot's line, made again only when what it shows changed (its button stays
+// the same element between states, so a click is never lost to a redraw).
+const robotLines = new Map(); // sysid -> {key, line}
+function robotLine(r) {
+  const key = JSON.stringify([r.link_lost, r.link_lost ? r.last_heard_unix_s : 0, r.status,
+    r.looks_action, robotMsgs.get(r.sysid) || ""]);
+  const held = robotLines.get(r.sysid);
+  if (held && held.key === key) return held.line;
+  const line = makeRobotLine(r);
+  robotLines.set(r.sysid, { key, line });
+  return line;
+}
+
+function makeRobotLine(r) {
+  const s = r.status;
+  const health = r.link_lost
+    ? (r.last_heard_unix_s > 0 ? `last heard ${clock(r.last_heard_unix_s)}` : "never heard")
+    : s ? `${s.fps.toFixed(1)} fps · outbox ${s.outbox_pending}` : "no status yet";
+  const line = el("span", { class: `robot${r.link_lost ? " lost" : ""}`, dataset: { robot: String(r.sysid) },
+    style: `border-color:${robotColour(r.sysid)}` },
+  `R${r.sysid} `, el("b", {}, r.link_lost ? "LINK LOST" : "link ok"), ` · ${health}`);
+  if (s) line.append(" · ", el("span", { class: `looks${s.looks_on ? " on" : ""}`, title: LOOKS_TITLE }, s.looks), " ", looksButton(r));
+  const a = r.looks_action;
+  if (a) line.append(" ", el("span", { class: `looks-sent ${a.rejected ? "rejected" : a.acked ? "acked" : "pending"}`, title: a.why || "" },
+    a.rejected ? `${ACTION_LABEL[a.action]}: rejected` : a.acked ? `${ACTION_LABEL[a.action]} ✓` : `${ACTION_LABEL[a.action]}: sending…`));
+  const msg = robotMsgs.get(r.sysid);
+  if (msg) line.append(" ", el("span", { class: "msg" }, msg));
+  return line;
+}
+
+const LOOKS_TITLE = "Closer looks: the robot leaves its route for a short detour to look again at a " +
+  "possible victim it cannot settle, then resumes its mission (only armed and in AUTO; any mode change " +
+  "by the operator ends it). Its parameter RC_LOOK_ON in QGC is the same switch.";
+const robotMsgs = new Map(); // sysid -> why the last looks off/on was not recorded
+
+// "No more looks" while the robot's looks are on, "Looks on" while off: recorded at the
+// HQ and sent to the robot until it acknowledges, as every action.
+function looksButton(r) {
+  const on = r.status.looks_on;
+  const button = el("button", { class: `act act-looks-${on ? "off" : "on"}`, dataset: { looks: on ? "off" : "on" } },
+    on ? "No more looks" : "Looks on");
+  button.addEventListener("click", async (ev) => {
+    ev.stopPropagation();
+    try {
+      await post(`/api/robots/${r.sysid}/looks`, { looks: button.dataset.looks });
+      robotMsgs.delete(r.sysid);
+    } catch (e) {
+      robotMsgs.set(r.sysid, `not sent: ${e.message}`);
+      if (state) drawList();
+    }
+  });
+  return button;
 }
 
 function select(id, fromList) {
