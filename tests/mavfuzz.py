@@ -172,10 +172,12 @@ class FrameFuzzer:
         if msg_id == RESCUE_VICTIM_REPORT_ID:
             return self._report()
         if msg_id == RESCUE_STATUS_ID:
+            ended = [rng.randint(0, 5) for _ in range(4)]  # the closer looks' outcomes
+            looks = [sum(ended) + rng.randint(0, 2), *ended] if rng.random() < 0.7 else []
             return m.MAVLink_rescue_status_message(
                 rng.randint(0, 10**6), rng.uniform(0, 30), rng.uniform(0, 100),
-                rng.uniform(0, 500), rng.randint(0, 127), rng.randint(0, 50), rng.randint(0, 50),
-                rng.randint(0, 50),
+                rng.uniform(0, 500), rng.randint(0, 255), rng.randint(0, 50), rng.randint(0, 50),
+                rng.randint(0, 50), *looks,
             )  # fmt: skip
         if msg_id == RESCUE_ACK_ID:
             return m.MAVLink_rescue_ack_message(
@@ -192,7 +194,7 @@ class FrameFuzzer:
             return picture.ack_msg(m, 1, 191, rng.randint(0, 9), rng.randint(0, 3), {0, 1})
         if msg_id == RESCUE_OPERATOR_ACTION_ID:
             return m.MAVLink_rescue_operator_action_message(
-                rng.randint(0, 255), 191, rng.randint(0, 50), rng.randint(0, 100), rng.randint(0, 4)
+                rng.randint(0, 255), 191, rng.randint(0, 50), rng.randint(0, 100), rng.randint(0, 8)
             )
         assert msg_id == GPS_GLOBAL_ORIGIN_ID
         return m.MAVLink_gps_global_origin_message(
