@@ -301,6 +301,8 @@ class RobotStatus:
     def from_json(cls, text: str) -> RobotStatus:
         try:
             d: dict[str, Any] = json.loads(text)
+            if not isinstance(d, dict):
+                raise TypeError(f"{type(d).__name__}, not an object")
             looks = {name: d.get(name, 0) for name in LOOK_COUNTS}  # 0: stored before them
             return cls(
                 uptime_s=float(d["uptime_s"]),
