@@ -12,6 +12,8 @@ budgets allow; during a look, a mode the companion did not ask for ends it at on
 and switches looks off (``switched_off``) until the operator switches them on
 again; link loss, no progress (``stuck_s``), the look's time budget, or looks
 switched off abort it and resume the mission; no candidate is looked at twice.
+``ask`` is the HQ operator's "look closer at victim N": that victim is the next
+look, ahead of the companion's own candidates, under the same rules.
 """
 
 from __future__ import annotations
