@@ -415,3 +415,39 @@ def test_heat_through_a_blanket_finds_a_person_but_shows_none_of_them() -> None:
     assert find.area_m2 is not None and find.area_m2 > 0.3  # a body's size: the blanket
     assessment = assess(d, geometry)
     assert assessment is not None and assessment.urgency == Urgency.CRITICAL
+
+
+@pytest.mark.parametrize(
+    ("width_m", "part"),
+    [(0.2, True), (0.5, False)],
+    ids=["a head's end of a body, 0.2 m", "a torso's side, 0.5 m"],
+)
+def test_a_find_no_longer_than_a_forearm_is_a_part_whatever_its_pixels(
+    width_m: float, part: bool
+) -> None:
+    # The uncovered end of a buried body, 0.2 m high, seen side on by the low camera
+    # 2.5 m away: more pixels than 0.055 m² of a lying body would give there (its side
+    # faces the camera, a lying body's top does not), yet no longer than a head: a
+    # part alone, CRITICAL. A torso's side, as high and 0.5 m across, is no part.
+    geometry = _lepton_on_a_rover()
+    t = _scene()
+    _warm_patch_at(t, 2.5, 0.0, 0.0, 0.2, 29.0, width_m=width_m)  # clothing, not skin
+    (find,) = ThermalDetector().analyse(t, geometry, 0.0).finds
+    assert find.area_m2 is not None and find.area_m2 > ThermalDetectorParams().part_max_area_m2
+    assert ("warm_part" in find.detection.cues) is part
+    assessment = assess(find.detection, geometry)
+    assert assessment is not None and (assessment.urgency == Urgency.CRITICAL) is part
+
+
+def test_a_small_find_cut_by_the_frame_is_not_sized_as_a_part() -> None:
+    # The same 0.2 m end at the frame's left edge: how far it reaches out of view is
+    # unknown, so its size says nothing.
+    geometry = _lepton_on_a_rover()
+    t = _scene()
+    _warm_patch_at(t, 2.5, 0.0, 0.0, 0.2, 29.0)
+    x = int(np.nonzero((t > 25.0).any(axis=0))[0].min())
+    t = np.ascontiguousarray(t[:, x + 2 :])  # the patch's left 2 columns out of view
+    t = np.pad(t, ((0, 0), (0, x + 2)), mode="edge")
+    (find,) = ThermalDetector().analyse(t, geometry, 0.0).finds
+    assert find.detection.bbox_xywh_px[0] == 0
+    assert "warm_part" not in find.detection.cues

@@ -249,8 +249,13 @@ class ThermalDetector:
                 return reject(f"{area_m2:.2f} m² is larger than a person")
             if area_m2 >= p.flat_min_area_m2 and spread < p.flat_std_k:
                 return reject(f"large and flat ({area_m2:.2f} m², spread {spread:.2f} K)")
-            # A raised part was placed by a face's or a hand's size: a part.
-            part = raised is not None or area_m2 <= p.part_max_area_m2
+            # A raised part was placed by a face's or a hand's size: a part. So is a
+            # find no longer than a forearm where it lies, whatever its pixels.
+            part = (
+                raised is not None
+                or area_m2 <= p.part_max_area_m2
+                or _longest_m(geometry, box, (fu, fv), t.shape) <= p.part_max_extent_m
+            )
             key = _floor_key(geometry, u, v)
             in_metres = key is not None
         else:
@@ -394,6 +399,32 @@ def _raised_part(
         if geometry.metres_per_px(*floor_uv) is None:
             floor_uv = None
     return float(point[0, 2]), floor_uv
+
+
+def _longest_m(
+    geometry: FrameGeometry,
+    box: tuple[int, int, int, int],
+    floor_uv: tuple[float, float],
+    shape: tuple[int, ...],
+) -> float:
+    """A find's longest extent in metres (across or up its box) at the range of where
+    it lies; inf for a find cut by the frame (its size is unknown) or off the floor."""
+    x, y, w, h = box
+    height_px, width_px = shape
+    if x <= 0 or y <= 0 or x + w >= width_px or y + h >= height_px:
+        return math.inf
+    uc, vc = x + 0.5 * w, y + 0.5 * h
+    corners = np.array([[x, vc], [x + w, vc], [uc, y], [uc, y + h]], np.float64)
+    at_1m = geometry.along_ray(corners, 1.0)
+    camera = geometry.along_ray(corners[:1], 0.0)
+    floor = geometry.floor_ne_m(np.array([floor_uv], np.float64))
+    if at_1m is None or camera is None or not np.isfinite(floor).all():
+        return math.inf
+    extent_rad = max(
+        float(np.linalg.norm(at_1m[0] - at_1m[1])), float(np.linalg.norm(at_1m[2] - at_1m[3]))
+    )
+    north_m, east_m = float(floor[0, 0] - camera[0, 0]), float(floor[0, 1] - camera[0, 1])
+    return extent_rad * math.sqrt(north_m**2 + east_m**2 + float(camera[0, 2]) ** 2)
 
 
 # A part counts as raised when its size puts it nearer than this share of the range

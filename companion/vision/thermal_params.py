@@ -33,6 +33,12 @@ class ThermalDetectorParams:
     # ~0.03, a forearm ~0.025, a head and two hands ~0.05 m²): cue "warm_part". Under
     # a tenth of a lying adult's 0.57 m², so a part alone reads CRITICAL.
     part_max_area_m2: float = 0.055
+    # ... and so is a find whose longest extent where it lies (its box's width or
+    # height at the range of its floor point) is at most this: a hand 0.19 m, a head
+    # 0.23, a forearm 0.3; a body's torso is 0.45 m across, longer than that lying.
+    # A low camera sees a raised part's side, which its pixel area overstates against
+    # a lying body's; its size in metres does not. Not for a find cut by the frame.
+    part_max_extent_m: float = 0.3
     # Warm parts this close on the floor are one person (a head and its hands).
     merge_gap_m: float = 0.4
     # Large and flat: at least this large with a temperature spread (standard
