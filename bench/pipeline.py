@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from companion.calibration import camera_model
-from companion.commands.replay import LOOKAHEAD_S
+from companion.commands.mission_run import LOOKAHEAD_S
 from companion.config import load_config
 from companion.pipeline import Pipeline, ThermalEye
 from companion.reporting.policy import ReportPolicy

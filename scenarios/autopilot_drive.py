@@ -80,6 +80,11 @@ class Drive:
         """MISSION_CURRENT's seq: mission item i + 1 for route index i (0 is home)."""
         return min(self.route_index(t_s), max(0, len(self.mission) - 1)) + 1
 
+    def mission_done(self, t_s: float) -> bool:
+        """In AUTO with the whole route driven."""
+        seg = self._segment(t_s)
+        return seg.auto and self.route_index(t_s) >= len(self.mission)
+
     @property
     def mission_items(self) -> int:
         return len(self.mission) + 1  # with home

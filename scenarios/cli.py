@@ -8,7 +8,7 @@
     rescue-sim rover  (--preset P | --seed S | --world W) --link URL [--link URL ...]
                       [--camera-port PORT] [--thermal-port PORT] [--time-scale X]
     rescue-sim demo   [--preset P | --seed S | --world W] [--out DIR] [--duration-s T]
-                      [--resume] [--live]
+                      [--resume] [--live] [--no-looks]
 
 Exit status: 0 success, 1 runtime failure, 2 bad input or usage.
 """
@@ -163,6 +163,12 @@ def _parser() -> argparse.ArgumentParser:
         help="rover, camera, rescue-companion run and rescue-hq live in real time "
         "(results then depend on how many frames this machine processes)",
     )
+    d.add_argument(
+        "--no-looks",
+        action="store_true",
+        help="the rover drives its route only (default: the companion takes it on closer "
+        "looks at what it is unsure of; not with --live)",
+    )
     return parser
 
 
@@ -267,7 +273,13 @@ def _cmd_demo(args: argparse.Namespace, world: World) -> int:
 
     try:
         result = run_demo(
-            world, args.out, args.duration_s, args.speed_m_s, args.resume, live=args.live
+            world,
+            args.out,
+            args.duration_s,
+            args.speed_m_s,
+            args.resume,
+            live=args.live,
+            looks=not args.no_looks,
         )
     except DemoError as exc:
         print(f"rescue-sim: demo: {exc}", file=sys.stderr)

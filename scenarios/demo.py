@@ -3,11 +3,15 @@
 By default the demo is deterministic: the simulated rover's mission is recorded in
 simulated time (``scenarios.record``: frames and the autopilot's telemetry, the
 same for a seed on every machine), the companion's own pipeline processes every
-frame of it as on the Pi (``companion.commands.replay``: the default person detector,
-geolocation, tracker, reporting policy), and each report it decides goes, in
-order, as a RESCUE_VICTIM_REPORT over UDP to a real ``rescue-hq`` child process,
+frame of it as on the Pi (``companion.commands.mission_run``: the default person
+detector, geolocation, tracker, reporting policy), and each report it decides goes,
+in order, as a RESCUE_VICTIM_REPORT over UDP to a real ``rescue-hq`` child process,
 which stores, merges and acknowledges it (resent until acknowledged). A fixed seed
-gives the same victims, IDs and figures whatever the machine's speed.
+gives the same victims, IDs and figures whatever the machine's speed. The companion
+is in the recording's loop (scenarios/inloop.py) with its closer looks on: the
+rover leaves its route to look again at what the companion is unsure of, as the
+simulated ArduPilot Rover is told in MAVLink, and the map draws each look and what
+it settled (``--no-looks``: the route alone, recorded first, then replayed).
 
 ``--live`` runs the whole product in real time instead: the simulated rover and its
 two cameras in this process (scenarios.live), the real ``rescue-companion run`` (its
@@ -39,8 +43,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from companion.commands.missionmap import MapTruth, MapVictim, draw_mission_map
-from companion.commands.replay import ReplayReport, replay
+from companion.commands.mission_run import ReplayReport
+from companion.commands.missionmap import MapLook, MapTruth, MapVictim, draw_mission_map
+from companion.commands.replay import replay
 from companion.config import load_config
 from fusion.coverage import CoverageGrid
 from fusion.types import TrackState
@@ -49,7 +54,9 @@ from hq.registry import Registry
 from hq.simrobot import SimRobot
 from hq.view import hq_victims
 from mavlink_io import convert
+from scenarios.camera import THERMAL_FPS, default_camera, default_thermal_camera, write_camera_toml
 from scenarios.errors import SimError
+from scenarios.inloop import InLoopCompanion
 from scenarios.live import LiveSim
 from scenarios.motion import Trajectory, route_of
 from scenarios.record import record
@@ -144,9 +151,11 @@ def run_demo(
     speed_m_s: float,
     resume: bool = False,
     live: bool = False,
+    looks: bool = True,
 ) -> DemoResult:
     """Run a mission (recorded and replayed, or ``live``); every output, the
-    children's logs included, lands in ``out_dir``.
+    children's logs included, lands in ``out_dir``. ``looks``: the recorded mission
+    has the companion in its loop, taking the rover on closer looks.
 
     Fresh unless ``resume``: the previous run's state, logs and exports in
     ``out_dir`` are removed first (nothing else there is touched)."""
@@ -156,7 +165,7 @@ def run_demo(
         _fresh(out_dir)
     if live:
         return _run_live(world, out_dir, duration_s, speed_m_s)
-    return _run_recorded(world, out_dir, duration_s, speed_m_s)
+    return _run_recorded(world, out_dir, duration_s, speed_m_s, looks)
 
 
 def _start_hq(out_dir: Path, log_file: IO[bytes], *extra: str) -> subprocess.Popen[bytes]:
@@ -261,26 +270,40 @@ def _route_s(world: World, speed_m_s: float) -> float:
 
 
 def _run_recorded(
-    world: World, out_dir: Path, duration_s: float | None, speed_m_s: float
+    world: World, out_dir: Path, duration_s: float | None, speed_m_s: float, looks: bool
 ) -> DemoResult:
     mission = out_dir / "mission"
     print(
         f"demo: world {world.name or world.seed!r} with {len(world.victims)} victims; "
-        f"recording the mission in simulated time ({DEMO_FPS:g} frames/s) into {mission}",
+        f"recording the mission in simulated time ({DEMO_FPS:g} frames/s) into {mission}"
+        + (", the companion in the loop with closer looks on" if looks else ""),
         flush=True,
     )
-    if duration_s is None:
-        duration_s = _route_s(world, speed_m_s) + 2.0
+    route_s = _route_s(world, speed_m_s) + 2.0
     # The mission is set to end now (whole seconds), so the HQ's "last seen" reads
     # naturally; only differences of times enter the figures.
+    start_unix_s = float(math.floor(time.time() - (duration_s or route_s)))
+    companion = None
+    if looks:
+        mission.mkdir(parents=True, exist_ok=True)
+        write_camera_toml(
+            default_camera(),
+            mission / "camera.toml",
+            f"frames:{(mission / 'frames').resolve()}",
+            DEMO_FPS,
+            (default_thermal_camera(), f"frames:{(mission / 'thermal').resolve()}", THERMAL_FPS),
+        )
+        companion = InLoopCompanion(load_config(mission / "camera.toml"), looks=True, thermal=True)
+    started_s = time.monotonic()
     rec = record(
         world,
         mission,
-        duration_s=duration_s,
+        duration_s=duration_s if looks else (duration_s or route_s),
         fps=DEMO_FPS,
-        start_unix_s=float(math.floor(time.time() - duration_s)),
+        start_unix_s=start_unix_s,
         speed_m_s=speed_m_s,
         thermal=True,  # the Lepton beside the colour camera: thermal/ and [thermal]
+        companion=companion,
     )
     print(
         f"demo: {rec.frames} frames and {rec.thermal_frames} thermal frames of a "
@@ -288,13 +311,31 @@ def _run_recorded(
         "person detector and the thermal detector) processes every frame of both cameras",
         flush=True,
     )
-    started_s = time.monotonic()
-    result = replay(
-        load_config(mission / "camera.toml"),
-        mission / "mission.tlog",
-        mission / "frames",
-        mission / "thermal",
-    )
+    map_looks: list[MapLook] = []
+    if companion is not None:
+        result = companion.result()
+        for k, e in enumerate(companion.events, 1):
+            print(
+                f"demo: closer look {k} at {e.started_unix_s - start_unix_s:.0f} s, to a "
+                f"{e.kind} {math.dist(e.start_ne_m, e.candidate_ne_m):.1f} m from the route: "
+                f"{e.outcome or 'under way at the end'}",
+                flush=True,
+            )
+            map_looks.append(MapLook(e.start_ne_m, e.view_ne_m, e.candidate_ne_m, e.outcome))
+        extra_s = rec.duration_s - route_s
+        print(
+            f"demo: {len(companion.events)} closer look(s); the mission took "
+            f"{rec.duration_s:.0f} s, {extra_s:+.0f} s against its route alone",
+            flush=True,
+        )
+    else:
+        started_s = time.monotonic()
+        result = replay(
+            load_config(mission / "camera.toml"),
+            mission / "mission.tlog",
+            mission / "frames",
+            mission / "thermal",
+        )
     status = _ReplayStatus(
         uptime_s=rec.duration_s,
         fps=result.frames / rec.duration_s if rec.duration_s > 0 else 0.0,
@@ -322,7 +363,15 @@ def _run_recorded(
     }
     reported_at = {(result.robot_sysid, vid): t for vid, t in result.first_reported_unix_s.items()}
     return _summarise(
-        world, out_dir, result.route_ne_m, first_in_view, 0, hq_exit, reported_at, result.coverage
+        world,
+        out_dir,
+        result.route_ne_m,
+        first_in_view,
+        0,
+        hq_exit,
+        reported_at,
+        result.coverage,
+        map_looks,
     )
 
 
@@ -381,6 +430,7 @@ def _summarise(
     hq_exit: int,
     reported_at: dict[tuple[int, int], float] | None = None,
     coverage: CoverageGrid | None = None,
+    looks: list[MapLook] | None = None,
 ) -> DemoResult:
     """Score and map what the HQ holds (the victims ``rescue-hq list`` shows).
     ``reported_at``: when each (robot, victim) was first reported, on the mission's
@@ -445,6 +495,7 @@ def _summarise(
         [d.polygon for d in world.debris],
         floor,
         coverage,
+        looks or (),
     )
     cameras = {v.hq_id: v.cues.cameras or "?" for v in victims}
     table = _victim_table(world, result, reported, first_in_view, cameras)

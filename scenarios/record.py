@@ -28,9 +28,13 @@ import logging
 import math
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
+
+import cv2
+import numpy as np
 
 from fusion.camera import CameraModel
 from mavlink_io.convert import usec_from_unix_s
@@ -41,12 +45,13 @@ from scenarios.camera import (
     default_thermal_camera,
     write_camera_toml,
 )
-from scenarios.motion import Trajectory, route_of
+from scenarios.motion import Trajectory, TruePose, route_of
 from scenarios.render import MIN_VIEW_PX, Renderer, RenderOptions, encode_jpeg
 from scenarios.thermal import (
     MIN_WARM_VIEW_PX,
     ThermalOptions,
     ThermalRenderer,
+    decode_centikelvin_png,
     encode_centikelvin_png,
 )
 from scenarios.world import World, save_world
@@ -61,6 +66,24 @@ COMPANION_RATES_HZ: dict[int, float] = {
     ap.SIM_STATE: 10.0,
 }
 _PATH_STEP_S = 0.5
+
+
+class InLoop(Protocol):
+    """A companion in the recording's loop (scenarios/inloop.py), on the recording's
+    Unix clock: it hears what the autopilot sends, sees each frame as the companion
+    would read it back from disk, and what ``step`` returns is sent to the autopilot."""
+
+    def heard(self, t_unix_s: float, packet: bytes) -> None: ...
+
+    def colour(self, t_unix_s: float, image_bgr: np.ndarray) -> None: ...
+
+    def thermal(self, t_unix_s: float, temps_c: np.ndarray) -> None: ...
+
+    def step(self, t_unix_s: float) -> list[bytes]: ...
+
+
+_STEP_S = 0.05  # how often the companion in the loop is stepped
+MISSION_END_S = 2.0  # recorded past the end of the mission
 
 
 @dataclass(frozen=True)
@@ -93,9 +116,15 @@ def record(
     thermal_camera: CameraModel | None = None,
     thermal_fps: float = THERMAL_FPS,
     thermal_options: ThermalOptions | None = None,
+    companion: InLoop | None = None,
 ) -> RecordResult:
     """Simulate and write a mission (see the module docstring). Deterministic for the
-    world's seed and start_unix_s. ``thermal``: also the thermal camera's frames."""
+    world's seed and start_unix_s. ``thermal``: also the thermal camera's frames.
+
+    With ``companion`` in the loop the rover drives as the autopilot is told (its
+    closer looks), so the mission is recorded until the autopilot has driven its whole
+    route (and ``MISSION_END_S`` more), at most ``duration_s``; the frames and the
+    truth follow the rover where it really went."""
     camera = camera or default_camera()
     thermal_camera = thermal_camera or default_thermal_camera()
     start = time.time() if start_unix_s is None else start_unix_s
@@ -109,8 +138,6 @@ def record(
         speed_m_s=speed_m_s,
         seed=world.seed,
     )
-    if duration_s is None:
-        duration_s = trajectory.duration_s() + 2.0
     pilot = ap.Autopilot(
         trajectory,
         world.origin,
@@ -118,6 +145,14 @@ def record(
         unix_of=lambda t: start + t,
         rates_hz=COMPANION_RATES_HZ,
     )
+    if duration_s is None:
+        duration_s = trajectory.duration_s() + MISSION_END_S
+        if companion is not None:  # the looks' detours take longer; at most this
+            duration_s = 3.0 * duration_s + 120.0
+    # The autopilot's motion is the trajectory's own until the first mode change.
+    pose_at: Callable[[float], TruePose] = pilot.drive.pose_at if companion else trajectory.pose_at
+    next_step = 0.0 if companion is not None else math.inf
+    ended_s: float | None = None
     renderer = Renderer(world, camera, options=render_options)
     first_seen: dict[int, float] = {}
     frames_in_view: dict[int, int] = {}
@@ -136,17 +171,24 @@ def record(
     t = 0.0
     with (out_dir / "mission.tlog").open("wb") as tlog:
         while True:
-            t = min(pilot.next_due_s(), next_frame, next_thermal)
-            if t > duration_s:
+            t = min(pilot.next_due_s(), next_frame, next_thermal, next_step)
+            if t > duration_s or (ended_s is not None and t > ended_s + MISSION_END_S):
                 break
             t = max(t, 0.0)
             for _link, packet in pilot.poll(t):
                 tlog.write(_tlog_entry(start + t, packet))
                 n_packets += 1
+                if companion is not None:
+                    companion.heard(start + t, packet)
             if next_frame <= t:
                 usec = usec_from_unix_s(start + next_frame)
-                result = renderer.render(trajectory.pose_at(next_frame), frame_key=n_frames)
-                (frames_dir / f"{usec}.jpg").write_bytes(encode_jpeg(result.image, jpeg_quality))
+                result = renderer.render(pose_at(next_frame), frame_key=n_frames)
+                jpeg = encode_jpeg(result.image, jpeg_quality)
+                (frames_dir / f"{usec}.jpg").write_bytes(jpeg)
+                if companion is not None:  # as the companion reads it back
+                    decoded = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+                    assert decoded is not None  # our own JPEG
+                    companion.colour(usec / 1e6, decoded)
                 for vid, px in result.visible_px.items():
                     max_px[vid] = max(max_px.get(vid, 0), px)
                     if px >= min_view_px:
@@ -157,11 +199,24 @@ def record(
             if thermal_renderer is not None and next_thermal <= t:
                 usec = usec_from_unix_s(start + next_thermal)
                 shot = thermal_renderer.render(
-                    trajectory.pose_at(next_thermal), next_thermal, frame_key=warm.frames
+                    pose_at(next_thermal), next_thermal, frame_key=warm.frames
                 )
-                (thermal_dir / f"{usec}.png").write_bytes(encode_centikelvin_png(shot.temps_c))
+                png = encode_centikelvin_png(shot.temps_c)
+                (thermal_dir / f"{usec}.png").write_bytes(png)
+                if companion is not None and not shot.frozen:  # a frozen frame is skipped
+                    companion.thermal(usec / 1e6, decode_centikelvin_png(png))
                 warm.add(shot.warm_px, usec / 1e6, shot.frozen)
                 next_thermal = (warm.frames + 0.25) / thermal_fps
+            if companion is not None and next_step <= t:
+                for data in companion.step(start + t):
+                    for _link, packet in pilot.handle(0, data, t):
+                        tlog.write(_tlog_entry(start + t, packet))
+                        n_packets += 1
+                        companion.heard(start + t, packet)
+                next_step = t + _STEP_S
+                if ended_s is None and pilot.drive.mission_done(t):
+                    ended_s = t
+        duration_s = min(duration_s, t)
     write_camera_toml(
         camera,
         out_dir / "camera.toml",
@@ -171,7 +226,16 @@ def record(
     )
     save_world(world, out_dir / "world.toml")
     truth = _truth(
-        world, trajectory, start, duration_s, fps, min_view_px, first_seen, frames_in_view, max_px
+        world,
+        pose_at,
+        trajectory.route,
+        start,
+        duration_s,
+        fps,
+        min_view_px,
+        first_seen,
+        frames_in_view,
+        max_px,
     )
     truth["thermal"] = warm.truth(world, thermal_fps) if thermal else None
     if thermal:  # in view of either camera: the scorer takes the earlier
@@ -245,7 +309,8 @@ class _WarmView:
 
 def _truth(
     world: World,
-    trajectory: Trajectory,
+    pose_at: Callable[[float], TruePose],
+    route: tuple[tuple[float, float], ...],
     start: float,
     duration_s: float,
     fps: float,
@@ -256,7 +321,7 @@ def _truth(
 ) -> dict[str, Any]:
     path = []
     for k in range(int(duration_s / _PATH_STEP_S) + 1):
-        p = trajectory.pose_at(k * _PATH_STEP_S)
+        p = pose_at(k * _PATH_STEP_S)
         path.append(
             [
                 round(start + p.t_s, 3),
@@ -297,6 +362,6 @@ def _truth(
             for v in world.victims
         ],
         "lookalike_debris": sum(1 for d in world.debris if d.kind.startswith("lookalike")),
-        "route_ne_m": [list(p) for p in trajectory.route],
+        "route_ne_m": [list(p) for p in route],
         "true_path_unix_n_e_yaw": path,
     }

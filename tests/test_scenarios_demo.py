@@ -41,6 +41,9 @@ def test_demo_reports_to_the_hq_maps_and_starts_fresh_unless_resumed(tmp_path: P
     assert t1[:2] == ["T1", "LIGHT"] and t1[2][:1] == "V" and t1[3] == "LIGHT"
     assert "after first in view" in lines[0]
     assert "false victims 0" in first.stdout
+    # The companion is in the loop with its closer looks on: the rover left its route
+    # to look again, and the demo says what each look settled.
+    assert "demo: closer look 1 at " in first.stdout
     # What the table says was reported is what the HQ holds and exports.
     reported = sorted(int(w[1:]) for line in lines for w in line.split() if w[:1] == "V")
     assert reported[0] == 1

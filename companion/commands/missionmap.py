@@ -4,7 +4,8 @@ them, given a coverage grid, where the cameras looked (searched well, glanced at
 looked at; fusion/coverage.py: it over-claims behind tall debris); for a
 simulated mission also the debris and the true victims, labelled, each joined to
 the centre of its uncovered part where that lies apart from the body's centre (a
-buried victim is found, and scored, where it shows)."""
+buried victim is found, and scored, where it shows); and each closer look, with
+what it settled."""
 
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ _MARGIN_PX = 50
 _MIN_SPAN_M = 4.0
 _ROUTE_BGR = (150, 110, 60)
 _DEBRIS_BGR = (185, 185, 185)
+_LOOK_BGR = (170, 50, 150)  # purple
 _TEXT_BGR = (30, 30, 30)
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 # Coverage shades: searched well, glanced at, looked at (under everything else).
@@ -75,6 +77,17 @@ class MapTruth:
     visible_ne_m: tuple[float, float] | None = None  # centre of its uncovered part
 
 
+@dataclass(frozen=True)
+class MapLook:
+    """A closer look: where the route was left, the viewpoint, what it looked at, and
+    what it settled (or why it was aborted)."""
+
+    start_ne_m: tuple[float, float]
+    view_ne_m: tuple[float, float]
+    candidate_ne_m: tuple[float, float]
+    outcome: str
+
+
 _VISIBLE_APART_M = 0.2  # a visible part nearer the body's centre than this is not drawn
 
 
@@ -93,11 +106,13 @@ def draw_mission_map(
     debris_ne_m: Sequence[np.ndarray] = (),
     extent_ne_m: tuple[float, float, float, float] | None = None,
     coverage: CoverageGrid | None = None,
+    looks: Sequence[MapLook] = (),
 ) -> None:
     """Write the map. ``extent_ne_m`` (n0, n1, e0, e1) fixes the area shown (a
     simulated world's floor); by default it is what the route and victims span.
     ``coverage``: its cells are shaded under everything by how well they were
-    searched, and the legend gives the areas."""
+    searched, and the legend gives the areas. ``looks``: each closer look's
+    viewpoint, joined to where the route was left and to what it looked at."""
     if extent_ne_m is not None:
         n0, n1, e0, e1 = extent_ne_m
     else:
@@ -141,6 +156,12 @@ def draw_mission_map(
         cv2.circle(img, px(*route_ne_m[0]), 6, _ROUTE_BGR, -1)
     right_px = int(_MARGIN_PX + (e1 - e0) * scale)
     labels: list[tuple[str, tuple[int, int]]] = []
+    for k, look in enumerate(looks, 1):
+        view = px(*look.view_ne_m)
+        cv2.line(img, px(*look.start_ne_m), view, _LOOK_BGR, 2, cv2.LINE_AA)
+        cv2.arrowedLine(img, view, px(*look.candidate_ne_m), _LOOK_BGR, 1, cv2.LINE_AA, 0, 0.2)
+        cv2.drawMarker(img, view, _LOOK_BGR, cv2.MARKER_TRIANGLE_UP, 12, 2, cv2.LINE_AA)
+        labels.append((f"look {k}: {look.outcome}", view))
     for t in truth:
         at = px(t.north_m, t.east_m)
         cv2.drawMarker(img, at, (0, 0, 0), cv2.MARKER_TILTED_CROSS, 16, 2, cv2.LINE_AA)
@@ -170,7 +191,7 @@ def draw_mission_map(
     for text, (x, y), _at in place_labels(labels, markers, (0, 0, right_px, img.shape[0])):
         cv2.putText(img, text, (x, y), _FONT, 0.5, (250, 250, 250), 4, cv2.LINE_AA)  # halo
         cv2.putText(img, text, (x, y), _FONT, 0.5, _TEXT_BGR, 1, cv2.LINE_AA)
-    y = _legend(img, right_px + 20, bool(truth), bool(parts), bool(debris_ne_m))
+    y = _legend(img, right_px + 20, bool(truth), bool(parts), bool(debris_ne_m), bool(looks))
     if coverage is not None:
         _coverage_legend(img, right_px + 20, y, coverage)
     bar_px = int(scale)
@@ -287,7 +308,7 @@ def _coverage_legend(img: np.ndarray, x: int, y: int, grid: CoverageGrid) -> Non
     cv2.putText(img, " tall debris)", (x, y + 16), _FONT, 0.4, _TEXT_BGR, 1)
 
 
-def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool) -> int:
+def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool, looks: bool) -> int:
     y = 30
     cv2.putText(img, "Legend", (x, y), _FONT, 0.55, _TEXT_BGR, 2, cv2.LINE_AA)
     for urgency, colour in URGENCY_BGR.items():
@@ -312,4 +333,8 @@ def _legend(img: np.ndarray, x: int, truth: bool, parts: bool, debris: bool) -> 
         y += 26
         cv2.rectangle(img, (x, y - 12), (x + 16, y + 2), _DEBRIS_BGR, -1)
         cv2.putText(img, "debris", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
+    if looks:
+        y += 26
+        cv2.drawMarker(img, (x + 8, y - 5), _LOOK_BGR, cv2.MARKER_TRIANGLE_UP, 12, 2)
+        cv2.putText(img, "closer look from here", (x + 22, y), _FONT, 0.5, _TEXT_BGR, 1)
     return y

@@ -22,85 +22,36 @@ import json
 import logging
 import sys
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from companion.calibration import camera_model
+from companion.commands.mission_run import LOOKAHEAD_S, MissionRun, ReplayResult
 from companion.commands.missionmap import MapVictim, draw_mission_map
 from companion.config import Config
-from companion.coverage import CoverageMapper, coverage_document
-from companion.pipeline import FrameOutcome, Pipeline, ThermalEye
-from companion.reporting.policy import ReportPolicy
+from companion.coverage import coverage_document
 from companion.sources.base import CameraError, EndOfStream, Frame
 from companion.sources.folder import FramesDirSource
 from companion.sources.size import SizedSource
 from companion.sources.thermal import ThermalFrame
 from companion.sources.thermal_folder import ThermalFramesDir
-from companion.vision.backends import make_detector
-from companion.vision.thermal import ThermalDetector
-from fusion.coverage import CoverageGrid
-from fusion.pose import PoseHistory
-from fusion.registry import Victim
-from fusion.tracker import VictimTracker
-from fusion.types import GlobalOrigin, TrackState, VictimReport
 from mavlink_io.codec import MavMessage
 from mavlink_io.errors import TlogError
-from mavlink_io.telemetry import TelemetryDecoder, is_autopilot_heartbeat
+from mavlink_io.telemetry import is_autopilot_heartbeat
 from mavlink_io.tlog import read_tlog
 
 log = logging.getLogger(__name__)
 
-LOOKAHEAD_S = 0.25  # telemetry read past a frame before it is processed
 REPLAY_FORMAT = "rescue-companion/replay"
 REPLAY_VERSION = 1
 
 
-@dataclass(frozen=True)
-class ReplayReport:
-    """One report the live service would have sent: at the frame's capture time, the
-    victim as reported, the report's flags and the victim it was merged into."""
+class _Tlog:
+    """A tlog's messages, handed to the mission run up to a time."""
 
-    t_unix_s: float
-    report: VictimReport
-    flags: int
-    merged_into: int | None
-
-
-@dataclass
-class ReplayResult:
-    victims: list[Victim]
-    merged: list[Victim]
-    origin: GlobalOrigin | None
-    robot_sysid: int
-    frames: int = 0
-    frames_skipped: int = 0  # unreadable or truncated image files
-    frames_without_pose: int = 0
-    thermal_frames: int = 0
-    thermal_frames_skipped: int = 0  # unreadable files, and frames that were no evidence
-    poses: int = 0
-    reboots: int = 0
-    first_reported_unix_s: dict[int, float] = field(default_factory=dict)
-    route_ne_m: list[tuple[float, float]] = field(default_factory=list)
-    floor_down_m: float = 0.0
-    reports: list[ReplayReport] = field(default_factory=list)  # in the order decided
-    coverage: CoverageGrid = field(default_factory=CoverageGrid)  # where it has looked
-
-
-class _Telemetry:
-    """The autopilot's messages from a tlog, decoded into a pose history."""
-
-    def __init__(self, tlog: Path, poses: PoseHistory, offset_s: float) -> None:
+    def __init__(self, tlog: Path, run: MissionRun) -> None:
         self._messages: Iterator[tuple[float, MavMessage]] = read_tlog(tlog)
         self._pending: tuple[float, MavMessage] | None = None
-        self._offset_s = offset_s  # tlog wall time -> the frames' t_mono_s
-        self.poses = poses
-        self.decoder = TelemetryDecoder()
-        self.sysid = 0
-        self.count = 0
-        self.reboots = 0
-        self.route: list[tuple[float, float]] = []
-        self.last_down_m = 0.0
+        self._run = run
 
     def advance_to(self, t_unix_s: float) -> None:
         """Feed every message stamped up to ``t_unix_s``."""
@@ -113,31 +64,7 @@ class _Telemetry:
             if t > t_unix_s:
                 return
             self._pending = None
-            self._handle(t, msg)
-
-    def _handle(self, t_unix_s: float, msg: MavMessage) -> None:
-        if is_autopilot_heartbeat(msg, self.sysid):
-            if self.sysid == 0:
-                self.sysid = msg.get_srcSystem()
-                log.info("replay: vehicle system ID %d", self.sysid)
-            return
-        if self.sysid == 0 or (msg.get_srcSystem(), msg.get_srcComponent()) != (self.sysid, 1):
-            return
-        update = self.decoder.handle(msg, t_unix_s + self._offset_s)
-        if update.rebooted:
-            self.reboots += 1
-            log.warning("replay: the autopilot rebooted at %.3f; pose history cleared", t_unix_s)
-            self.poses.clear()
-        if update.pose is not None:
-            self.poses.add(update.pose)
-            self.count += 1
-            self.last_down_m = update.pose.down_m
-            if not self.route or _far(self.route[-1], (update.pose.north_m, update.pose.east_m)):
-                self.route.append((update.pose.north_m, update.pose.east_m))
-
-
-def _far(a: tuple[float, float], b: tuple[float, float], step_m: float = 0.05) -> bool:
-    return abs(a[0] - b[0]) + abs(a[1] - b[1]) > step_m
+            self._run.message(t, msg)
 
 
 def _progress(done: int, total: int, victims: int) -> None:
@@ -178,7 +105,7 @@ def prepare_output(out: Path) -> Path:
     return path
 
 
-class _Thermal:
+class _ThermalFolder:
     """The thermal frames of a replay, on the colour frames' monotonic clock."""
 
     def __init__(self, config: Config, folder: Path, mono_minus_unix_s: float) -> None:
@@ -188,9 +115,6 @@ class _Thermal:
                 "thermal camera's size, field of view and mount are unknown"
             )
         self.source = ThermalFramesDir(folder, config.thermal.width_px, config.thermal.height_px)
-        self.eye = ThermalEye(
-            camera_model(config.thermal), ThermalDetector(config.thermal.detector)
-        )
         self._offset_s = mono_minus_unix_s
         self.next: ThermalFrame | None = None
         self.advance()
@@ -216,41 +140,13 @@ def replay(
     source = FramesDirSource(frames_dir)
     sized = SizedSource(source, config.camera.width_px, config.camera.height_px)
     thermal = (
-        _Thermal(config, thermal_dir, source.mono_minus_unix_s) if thermal_dir is not None else None
+        _ThermalFolder(config, thermal_dir, source.mono_minus_unix_s)
+        if thermal_dir is not None
+        else None
     )
-    poses = PoseHistory(config.vehicle.pose_history_s)
-    telemetry = _Telemetry(tlog, poses, source.mono_minus_unix_s)
-    tracker = VictimTracker(config.tracker)
-    pipeline = Pipeline(
-        config,
-        camera_model(config.camera),
-        make_detector(config.detector),
-        tracker,
-        ReportPolicy(
-            config.reporting.move_threshold_sigma,
-            config.reporting.move_min_m,
-            config.reporting.update_min_interval_s,
-        ),
-        thermal.eye if thermal is not None else None,
-    )
-    coverage = CoverageMapper(
-        CoverageGrid(),
-        config.geolocation,
-        pipeline.camera,
-        thermal.eye.camera if thermal is not None else None,
-    )
-    first_reported: dict[int, float] = {}
-    reports: list[ReplayReport] = []
+    run = MissionRun(config, source.mono_minus_unix_s, thermal is not None)
+    telemetry = _Tlog(tlog, run)
     total = len(source)
-
-    def decided(outcome: FrameOutcome) -> None:
-        floor_down_m = telemetry.last_down_m + config.geolocation.floor_down_m
-        for decision in outcome.decisions:
-            v = decision.victim
-            first_reported.setdefault(v.victim_id, outcome.t_unix_s)
-            report = v.to_report(telemetry.sysid, floor_down_m, telemetry.decoder.origins.origin)
-            reports.append(ReplayReport(outcome.t_unix_s, report, decision.flags, v.merged_into))
-
     while True:
         try:
             frame: Frame | None = sized.read(timeout_s=0.0)
@@ -263,41 +159,21 @@ def replay(
             and (frame is None or thermal.next.t_unix_s < frame.t_unix_s)
         ):
             telemetry.advance_to(thermal.next.t_unix_s + LOOKAHEAD_S)
-            outcome = pipeline.process_thermal(thermal.next, poses)
-            coverage.add(outcome.pose, outcome.sensor)
-            decided(outcome)
+            run.thermal(thermal.next)
             thermal.advance()
         if frame is None:
             break
         telemetry.advance_to(frame.t_unix_s + LOOKAHEAD_S)
-        outcome = pipeline.process(frame, poses)
-        coverage.add(outcome.pose, outcome.sensor, frame.image)
-        decided(outcome)
-        _progress(frame.index + 1, total, len(tracker.victims()))
+        run.colour(frame)
+        _progress(frame.index + 1, total, len(run.tracker.victims()))
     telemetry.advance_to(float("inf"))
     source.close()
     if thermal is not None:
         thermal.source.close()
-    if telemetry.count == 0:  # a real log can lack LOCAL_POSITION_NED: say it, do not fail
+    if run.telemetry.count == 0:  # a real log can lack LOCAL_POSITION_NED: say it, do not fail
         log.warning("replay: no pose decoded from %s (no ATTITUDE with LOCAL_POSITION_NED)", tlog)
-    everything = tracker.victims()
-    return ReplayResult(
-        victims=[v for v in everything if v.state != TrackState.MERGED],
-        merged=[v for v in everything if v.state == TrackState.MERGED],
-        origin=telemetry.decoder.origins.origin,
-        robot_sysid=telemetry.sysid,
-        frames=pipeline.counters.frames,
-        frames_skipped=source.frames_skipped,
-        frames_without_pose=pipeline.counters.frames_without_pose,
-        thermal_frames=pipeline.counters.thermal_frames,
-        thermal_frames_skipped=thermal.source.frames_skipped if thermal is not None else 0,
-        poses=telemetry.count,
-        reboots=telemetry.reboots,
-        first_reported_unix_s=first_reported,
-        route_ne_m=telemetry.route,
-        floor_down_m=telemetry.last_down_m + config.geolocation.floor_down_m,
-        reports=reports,
-        coverage=coverage.grid,
+    return run.result(
+        source.frames_skipped, thermal.source.frames_skipped if thermal is not None else 0
     )
 
 

@@ -35,10 +35,10 @@ from companion.looks.machine import (
     SetCurrent,
     SetMode,
 )
+from fusion.pose import PoseHistory
 from fusion.registry import Victim
 from mavlink_io import guided
-from mavlink_io.codec import MavMessage
-from mavlink_io.vehicle import VehicleLink
+from mavlink_io.codec import Codec, MavMessage
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +70,24 @@ def tally(machine: LookMachine) -> Tally:
     )
 
 
+class Vehicle(Protocol):
+    """What the looks need of the vehicle link (mavlink_io.vehicle.VehicleLink; the
+    simulator's closed loop, scenarios/inloop.py, has its own)."""
+
+    poses: PoseHistory
+    codec: Codec
+
+    @property
+    def sysid(self) -> int: ...
+
+    @property
+    def connected(self) -> bool: ...
+
+    def listen(self, callback: Callable[[MavMessage, float], None]) -> None: ...
+
+    def send(self, msg: MavMessage) -> bool: ...
+
+
 class Announces(Protocol):
     def announce(self, text: str, severity: int) -> None: ...
 
@@ -78,7 +96,7 @@ class Looks:
     def __init__(
         self,
         settings: LooksConfig,
-        vehicle: VehicleLink,
+        vehicle: Vehicle,
         announcer: Announces,
         switch_off: Callable[[], None],
         *,
