@@ -6,6 +6,7 @@ downloaded once from the npm registry and checked against the registry's own
 integrity string (``sha512-<base64>``); each file taken out of it is checked by
 its sha256 and written atomically. Nothing here runs at run time: the programs
 only read files that set-up put in place, and name those missing or altered.
+Of the project it imports only fusion's error base.
 """
 
 from __future__ import annotations

@@ -1,5 +1,8 @@
 """scenarios: the simulated world, renderer, rover, camera server and scoring.
 
+It runs the product against its world, so it may import the companion, rescue-hq,
+mavlink_io and fusion; nothing in the product imports it (tests/test_layers.py).
+
 The simulator renders with numpy in one process that also starts and restarts child
 processes (the chaos mission, the live demo). OpenBLAS's worker threads and fork do
 not mix: in the chaos mission a companion restart was forked while the camera

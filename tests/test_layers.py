@@ -30,6 +30,7 @@ RULES: dict[str, tuple[str, ...]] = {
     "fusion": ("companion", "mavlink_io", "hq", "scenarios", "npmfetch", *_IO),
     "mavlink_io": ("companion", "hq", "scenarios"),
     "hq": ("companion", "scenarios"),
+    "npmfetch": ("companion", "mavlink_io", "hq", "scenarios"),
     "companion": ("hq", "scenarios", "bench"),
     "companion/sources": (*_companion_except(), "mavlink_io"),
     "companion/vision": (*_companion_except(), "mavlink_io", "pymavlink"),
