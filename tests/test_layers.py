@@ -94,3 +94,51 @@ def test_every_package_says_what_it_holds() -> None:
         if len(doc.split()) < 12:
             short.append(str(init.relative_to(ROOT)))
     assert short == []
+
+
+_PROJECT = ("companion", "hq", "fusion", "mavlink_io", "scenarios", "npmfetch", "bench", "tools")
+
+
+def _defined_names(module: str) -> tuple[Path, set[str]] | None:
+    """A project module's folder or file and the names it defines itself (defs,
+    classes, assignments, also under ``if`` and ``try``); None when it is not ours."""
+    path = ROOT.joinpath(*module.split("."))
+    source = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    if not source.exists():
+        return None
+    names: set[str] = set()
+    for top in ast.parse(source.read_text(encoding="utf-8")).body:
+        nodes = ast.walk(top) if isinstance(top, ast.If | ast.Try) else [top]
+        for node in nodes:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                names.add(node.name)
+            elif isinstance(node, ast.Assign | ast.AnnAssign):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                names |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+    return path, names
+
+
+def test_every_import_names_the_module_that_defines_it() -> None:
+    """No re-exports: ``from M import N`` takes N from the module that defines it (or N
+    is a submodule of the package M), so a reader finds N where the import says."""
+    found = []
+    files = [
+        p for p in ROOT.rglob("*.py") if p.relative_to(ROOT).parts[0] not in (".venv", "build")
+    ]
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module):
+                continue
+            if node.module.split(".")[0] not in _PROJECT:
+                continue
+            defined = _defined_names(node.module)
+            if defined is None:
+                continue
+            where, names = defined
+            for alias in node.names:
+                submodule = (where / f"{alias.name}.py").exists() or (where / alias.name).is_dir()
+                if alias.name not in names and not submodule:
+                    found.append(
+                        f"{path.relative_to(ROOT)}:{node.lineno} {node.module}.{alias.name}"
+                    )
+    assert found == []
