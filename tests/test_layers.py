@@ -8,6 +8,7 @@ under TYPE_CHECKING count too: a lazy import is still a dependency.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -99,6 +100,7 @@ def test_every_package_says_what_it_holds() -> None:
 _PROJECT = ("companion", "hq", "fusion", "mavlink_io", "scenarios", "npmfetch", "bench", "tools")
 
 
+@functools.cache
 def _defined_names(module: str) -> tuple[Path, set[str]] | None:
     """A project module's folder or file and the names it defines itself (defs,
     classes, assignments, also under ``if`` and ``try``); None when it is not ours."""
