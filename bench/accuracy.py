@@ -138,7 +138,7 @@ from typing import Any
 import numpy as np
 
 from companion.commands.replay import replay, result_document
-from companion.config import load_config
+from companion.config_load import load_config
 from fusion.camera import CameraModel
 from scenarios.camera import default_camera
 from scenarios.record import record

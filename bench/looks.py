@@ -33,7 +33,7 @@ from typing import Any
 import scenarios  # noqa: F401  (BLAS single-threaded before numpy)
 from bench.accuracy import GATE_M, START_UNIX_S, SUITE, Scenario, figures, totals
 from companion.commands.replay import result_document
-from companion.config import load_config
+from companion.config_load import load_config
 from scenarios.camera import THERMAL_FPS, default_thermal_camera, write_camera_toml
 from scenarios.inloop import InLoopCompanion
 from scenarios.motion import Trajectory

@@ -45,7 +45,7 @@ import numpy as np
 
 from companion.calibration import camera_model
 from companion.commands.mission_run import LOOKAHEAD_S
-from companion.config import load_config
+from companion.config_load import load_config
 from companion.pipeline import Pipeline, ThermalEye
 from companion.reporting.policy import ReportPolicy
 from companion.sources.base import Frame, mono_minus_unix_s

@@ -6,7 +6,8 @@
   ``coverage``: where each frame looked (both shared by the service and replay);
 - ``reporting``: what is said to whom and when; ``storage``: what is kept on disk;
 - ``looks``: closer looks; ``service``: the running service and its threads;
-- ``commands``: the command line; ``config``, ``calibration``, ``errors``: shared.
+- ``commands``: the command line; ``config`` (read by ``config_load``),
+  ``calibration``, ``errors``: shared.
 
 Each subpackage's docstring says what it must not import (tests/test_layers.py
 holds them to it). Math lives in ``fusion``, MAVLink bytes in ``mavlink_io``.

@@ -21,7 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.config import CameraConfig, ConfigError, ThermalConfig
+from companion.config import CameraConfig, ThermalConfig
+from companion.config_load import ConfigError
 from fusion.camera import CameraModel, Intrinsics, Mount
 
 _MATRIX_KEYS = ("camera_matrix", "K", "cameraMatrix")

@@ -269,7 +269,8 @@ def _cmd_rover(args: argparse.Namespace, world: World) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace, world: World) -> int:
-    from scenarios.demo import DemoError, print_summary, run_demo
+    from scenarios.demo import DemoError, run_demo
+    from scenarios.demo_summary import print_summary
 
     try:
         result = run_demo(

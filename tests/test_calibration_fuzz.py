@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.calibration import camera_model
-from companion.config import ConfigError, config_from_dict
+from companion.config_load import ConfigError, config_from_dict
 from tests.jsonfuzz import fuzz_settings
 
 # The layout of ../shared/data/calibration's Raspberry Pi camera files (ROS camera_info).

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from companion.commands.replay import replay, result_document
-from companion.config import config_from_dict, load_config
+from companion.config_load import config_from_dict, load_config
 from mavlink_io.tlog import read_tlog
 from scenarios.score import load_report, load_truth, score
 

@@ -24,7 +24,7 @@ import pytest
 from conftest import NotifySocket
 
 from companion.commands.replay import replay, result_document
-from companion.config import load_config
+from companion.config_load import load_config
 from scenarios.ground import GroundPeer
 from scenarios.live import LiveSim
 from scenarios.world import preset

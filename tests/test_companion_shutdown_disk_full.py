@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from companion.config import config_from_dict
+from companion.config_load import config_from_dict
 from companion.reporting.policy import Decision
 from companion.service.run import Service
 from companion.service.sdnotify import Notifier

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from companion.calibration import camera_model, read_calibration
-from companion.config import Config, ConfigError, config_from_dict, load_config
+from companion.config import Config
+from companion.config_load import ConfigError, config_from_dict, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "systemd" / "config.example.toml"

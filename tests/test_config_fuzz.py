@@ -13,7 +13,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.calibration import camera_model
-from companion.config import ConfigError, config_from_dict
+from companion.config_load import ConfigError, config_from_dict
 from tests.jsonfuzz import NewKey, fuzz_settings, json_values
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "systemd" / "config.example.toml"

@@ -17,7 +17,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from companion.calibration import camera_model
-from companion.config import ConfigError, ThermalConfig, config_from_dict, load_config
+from companion.config import ThermalConfig
+from companion.config_load import ConfigError, config_from_dict, load_config
 from companion.vision.thermal_params import ThermalDetectorParams
 from tests.jsonfuzz import fuzz_settings, json_values
 

@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 
 import scenarios  # noqa: F401  (BLAS single-threaded before numpy, as rescue-sim does)
-from companion.config import Config, load_config
+from companion.config import Config
+from companion.config_load import load_config
 from mavlink_io.tlog import read_tlog
 from scenarios.camera import THERMAL_FPS, default_camera, default_thermal_camera, write_camera_toml
 from scenarios.inloop import InLoopCompanion

@@ -12,18 +12,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.config import LooksConfig, config_from_dict, load_config
+from companion.config import LooksConfig
+from companion.config_load import config_from_dict, load_config
 from companion.looks.choose import Kind, candidates, compass, known_free, settlement, viewpoint
-from companion.looks.machine import (
-    Face,
-    GoTo,
-    LookMachine,
-    Phase,
-    RequestMissionCurrent,
-    Rover,
-    SetCurrent,
-    SetMode,
-)
+from companion.looks.machine import LookMachine, Phase
+from companion.looks.steps import Face, GoTo, RequestMissionCurrent, Rover, SetCurrent, SetMode
 from fusion.registry import Victim
 from fusion.types import Cue, TrackState, Urgency
 from mavlink_io.guided import (

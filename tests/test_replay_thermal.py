@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from companion.commands.replay import replay, result_document
-from companion.config import load_config
+from companion.config_load import load_config
 from scenarios.score import load_report, load_truth, score
 
 

@@ -21,7 +21,7 @@ import pytest
 from pymavlink import mavutil
 
 from companion.calibration import camera_model
-from companion.config import config_from_dict
+from companion.config_load import config_from_dict
 from fusion.types import Urgency
 from scenarios.camera import default_camera
 from scenarios.camserver import HEADER, CameraServer

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from companion.calibration import camera_model
-from companion.config import load_config
+from companion.config_load import load_config
 from fusion.camera import rotation_zyx
 from scenarios.camera import THERMAL_FPS, default_camera, default_thermal_camera
 from scenarios.motion import TruePose

@@ -15,7 +15,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from companion.config import Config, ConfigError, load_config
+from companion.config import Config
+from companion.config_load import ConfigError, load_config
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 
 from companion.config import LooksConfig
@@ -34,6 +34,17 @@ from companion.looks.choose import (
     compass,
     settlement,
     viewpoint,
+)
+from companion.looks.steps import (
+    Command,
+    Face,
+    GoTo,
+    LookCounts,
+    RequestMissionCurrent,
+    Rover,
+    Say,
+    SetCurrent,
+    SetMode,
 )
 from fusion.registry import Victim
 from mavlink_io.guided import (
@@ -68,71 +79,6 @@ class Phase(Enum):
     RETURNING = "returning"
     RESUMING = "resuming AUTO"
     LINK_LOST = "link lost"
-
-
-@dataclass(frozen=True)
-class SetMode:
-    mode: int
-
-
-@dataclass(frozen=True)
-class GoTo:
-    north_m: float
-    east_m: float
-
-
-@dataclass(frozen=True)
-class Face:
-    yaw_rad: float
-
-
-@dataclass(frozen=True)
-class SetCurrent:
-    seq: int
-
-
-@dataclass(frozen=True)
-class RequestMissionCurrent:
-    pass
-
-
-Command = SetMode | GoTo | Face | SetCurrent | RequestMissionCurrent
-
-
-@dataclass(frozen=True)
-class Say:
-    text: str
-    severity: int
-
-
-@dataclass(frozen=True)
-class Rover:
-    """What the companion knows of the rover now."""
-
-    connected: bool
-    north_m: float | None = None
-    east_m: float | None = None
-    yaw_rad: float | None = None
-
-    @property
-    def ne(self) -> PointNE | None:
-        if self.north_m is None or self.east_m is None:
-            return None
-        return (self.north_m, self.east_m)
-
-
-@dataclass
-class LookCounts:
-    started: int = 0
-    settled: dict[str, int] = field(default_factory=dict)  # outcome word: count
-    aborted: dict[str, int] = field(default_factory=dict)  # reason: count
-    spent_s: float = 0.0
-
-    def summary(self) -> str:
-        parts = [f"{self.started} look{'' if self.started == 1 else 's'}"]
-        parts += [f"{n} {what}" for what, n in sorted(self.settled.items())]
-        parts += [f"{n} aborted ({why})" for why, n in sorted(self.aborted.items())]
-        return ", ".join(parts)
 
 
 @dataclass

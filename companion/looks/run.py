@@ -25,11 +25,11 @@ from typing import Protocol, assert_never
 
 from companion.config import LooksConfig
 from companion.looks.choose import candidates
-from companion.looks.machine import (
+from companion.looks.machine import LookMachine
+from companion.looks.steps import (
     Command,
     Face,
     GoTo,
-    LookMachine,
     RequestMissionCurrent,
     Rover,
     SetCurrent,
