@@ -371,26 +371,20 @@ def _raised_part(
     x, y, w, h = box
     if max(w, h) > p.raised_aspect_max * min(w, h):
         return None  # elongated: a limb along the floor, a pipe
-    height_px, width_px = shape
-    if x <= 0 or y <= 0 or x + w >= width_px or y + h >= height_px:
-        return None  # cut by the frame: its size says nothing of its range
-    uc, vc = x + 0.5 * w, y + 0.5 * h
-    corners = np.array([[x, vc], [x + w, vc], [uc, y], [uc, y + h], [uc, y + h - 0.5]])
-    at_1m = geometry.along_ray(corners, 1.0)
-    at_0 = geometry.along_ray(corners[-1:], 0.0)
-    if at_1m is None or at_0 is None:
-        return None
-    extent_rad = max(
-        float(np.linalg.norm(at_1m[0] - at_1m[1])), float(np.linalg.norm(at_1m[2] - at_1m[3]))
-    )
-    if extent_rad <= 0.0:
+    if _cut_by_frame(box, shape):
+        return None  # its size says nothing of its range
+    bottom = np.array([[x + 0.5 * w, y + h - 0.5]], np.float64)
+    extent_rad = _extent_rad(geometry, box)
+    at_1m = geometry.along_ray(bottom, 1.0)
+    at_0 = geometry.along_ray(bottom, 0.0)
+    if extent_rad is None or at_1m is None or at_0 is None or extent_rad <= 0.0:
         return None
     range_m = p.part_size_m / extent_rad
-    camera_m, drop_per_m = float(at_0[0, 2]), float(at_0[0, 2] - at_1m[4, 2])
+    camera_m, drop_per_m = float(at_0[0, 2]), float(at_0[0, 2] - at_1m[0, 2])
     floor_range_m = camera_m / drop_per_m if drop_per_m > 1e-6 else math.inf
     if range_m >= _RAISED_MARGIN * floor_range_m:
         return None  # where its floor contact says, or farther: on the floor
-    point = geometry.along_ray(corners[-1:], range_m)
+    point = geometry.along_ray(bottom, range_m)
     assert point is not None  # the geometry has rays (checked above)
     pixel = geometry.pixels_of_floor(point[:, :2])
     floor_uv = None
@@ -409,22 +403,35 @@ def _longest_m(
 ) -> float:
     """A find's longest extent in metres (across or up its box) at the range of where
     it lies; inf for a find cut by the frame (its size is unknown) or off the floor."""
-    x, y, w, h = box
-    height_px, width_px = shape
-    if x <= 0 or y <= 0 or x + w >= width_px or y + h >= height_px:
+    if _cut_by_frame(box, shape):
         return math.inf
+    extent_rad = _extent_rad(geometry, box)
+    camera = geometry.along_ray(np.array([floor_uv], np.float64), 0.0)
+    floor = geometry.floor_ne_m(np.array([floor_uv], np.float64))
+    if extent_rad is None or camera is None or not np.isfinite(floor).all():
+        return math.inf
+    north_m, east_m = float(floor[0, 0] - camera[0, 0]), float(floor[0, 1] - camera[0, 1])
+    return extent_rad * math.sqrt(north_m**2 + east_m**2 + float(camera[0, 2]) ** 2)
+
+
+def _cut_by_frame(box: tuple[int, int, int, int], shape: tuple[int, ...]) -> bool:
+    x, y, w, h = box
+    height_px, width_px = shape[:2]
+    return x <= 0 or y <= 0 or x + w >= width_px or y + h >= height_px
+
+
+def _extent_rad(geometry: FrameGeometry, box: tuple[int, int, int, int]) -> float | None:
+    """A box's larger angular extent, across or up through its centre (radians: metres
+    at 1 m along the rays); None for a geometry without the camera's rays."""
+    x, y, w, h = box
     uc, vc = x + 0.5 * w, y + 0.5 * h
     corners = np.array([[x, vc], [x + w, vc], [uc, y], [uc, y + h]], np.float64)
     at_1m = geometry.along_ray(corners, 1.0)
-    camera = geometry.along_ray(corners[:1], 0.0)
-    floor = geometry.floor_ne_m(np.array([floor_uv], np.float64))
-    if at_1m is None or camera is None or not np.isfinite(floor).all():
-        return math.inf
-    extent_rad = max(
+    if at_1m is None:
+        return None
+    return max(
         float(np.linalg.norm(at_1m[0] - at_1m[1])), float(np.linalg.norm(at_1m[2] - at_1m[3]))
     )
-    north_m, east_m = float(floor[0, 0] - camera[0, 0]), float(floor[0, 1] - camera[0, 1])
-    return extent_rad * math.sqrt(north_m**2 + east_m**2 + float(camera[0, 2]) ** 2)
 
 
 # A part counts as raised when its size puts it nearer than this share of the range
