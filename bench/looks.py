@@ -33,9 +33,7 @@ from typing import Any
 import scenarios  # noqa: F401  (BLAS single-threaded before numpy)
 from bench.accuracy import GATE_M, START_UNIX_S, SUITE, Scenario, figures, totals
 from companion.commands.replay import result_document
-from companion.config_load import load_config
-from scenarios.camera import THERMAL_FPS, default_thermal_camera, write_camera_toml
-from scenarios.inloop import InLoopCompanion
+from scenarios.inloop import InLoopCompanion, recording_config
 from scenarios.motion import Trajectory
 from scenarios.record import MISSION_END_S, record
 from scenarios.score import ScoreResult, load_truth, report_from_dict, score
@@ -48,14 +46,8 @@ def measure_one(scenario: Scenario, work_dir: Path) -> tuple[dict[str, Any], Sco
     start = time.perf_counter()
     world = scenario.make_world()
     camera = scenario.camera()
-    write_camera_toml(
-        camera,
-        work_dir / "camera.toml",
-        f"frames:{work_dir / 'frames'}",
-        scenario.fps,
-        (default_thermal_camera(), f"frames:{work_dir / 'thermal'}", THERMAL_FPS),
-    )
-    companion = InLoopCompanion(load_config(work_dir / "camera.toml"), looks=True, thermal=True)
+    config = recording_config(work_dir, scenario.fps, camera)
+    companion = InLoopCompanion(config, looks=True, thermal=True)
     rec = record(
         world,
         work_dir,

@@ -49,10 +49,9 @@ from companion.commands.replay import replay
 from companion.config_load import load_config
 from hq.simrobot import SimRobot
 from mavlink_io import convert
-from scenarios.camera import THERMAL_FPS, default_camera, default_thermal_camera, write_camera_toml
 from scenarios.demo_summary import DemoResult, summarise
 from scenarios.errors import SimError
-from scenarios.inloop import InLoopCompanion
+from scenarios.inloop import InLoopCompanion, recording_config
 from scenarios.live import LiveSim
 from scenarios.motion import Trajectory, route_of
 from scenarios.record import record
@@ -265,15 +264,8 @@ def _run_recorded(
     start_unix_s = float(math.floor(time.time() - (duration_s or route_s)))
     companion = None
     if looks:
-        mission.mkdir(parents=True, exist_ok=True)
-        write_camera_toml(
-            default_camera(),
-            mission / "camera.toml",
-            f"frames:{(mission / 'frames').resolve()}",
-            DEMO_FPS,
-            (default_thermal_camera(), f"frames:{(mission / 'thermal').resolve()}", THERMAL_FPS),
-        )
-        companion = InLoopCompanion(load_config(mission / "camera.toml"), looks=True, thermal=True)
+        config = recording_config(mission, DEMO_FPS)
+        companion = InLoopCompanion(config, looks=True, thermal=True)
     started_s = time.monotonic()
     rec = record(
         world,

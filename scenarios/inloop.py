@@ -22,17 +22,22 @@ import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from companion.commands.mission_run import LOOKAHEAD_S, MissionRun, ReplayResult
 from companion.config import Config
+from companion.config_load import load_config
 from companion.looks.machine import Phase
 from companion.looks.run import Looks
 from companion.sources.base import Frame
 from companion.sources.thermal import ThermalFrame
+from fusion.camera import CameraModel
 from fusion.pose import PoseHistory
 from mavlink_io.codec import Codec, MavMessage
+from scenarios.camera import default_camera, default_thermal_camera
+from scenarios.record import write_recording_toml
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +90,15 @@ class LookEvent:
     track_id: int
     ended_unix_s: float | None = None
     outcome: str = ""
+
+
+def recording_config(out_dir: Path, fps: float, camera: CameraModel | None = None) -> Config:
+    """The config of the recording about to be made in ``out_dir`` with the simulator's
+    cameras (the camera.toml scenarios.record writes there, written now): what the
+    companion in its loop runs with."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    camera = camera or default_camera()
+    return load_config(write_recording_toml(out_dir, camera, fps, default_thermal_camera()))
 
 
 class InLoopCompanion:

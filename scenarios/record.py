@@ -217,13 +217,7 @@ def record(
                 if ended_s is None and pilot.drive.mission_done(t):
                     ended_s = t
         duration_s = min(duration_s, t)
-    write_camera_toml(
-        camera,
-        out_dir / "camera.toml",
-        f"frames:{frames_dir.resolve()}",
-        fps,
-        (thermal_camera, f"frames:{thermal_dir.resolve()}", thermal_fps) if thermal else None,
-    )
+    write_recording_toml(out_dir, camera, fps, thermal_camera if thermal else None, thermal_fps)
     save_world(world, out_dir / "world.toml")
     truth = _truth(
         world,
@@ -254,6 +248,23 @@ def record(
         out_dir,
     )
     return RecordResult(out_dir, n_frames, n_packets, warm.frames, duration_s, start)
+
+
+def write_recording_toml(
+    out_dir: Path,
+    camera: CameraModel,
+    fps: float,
+    thermal_camera: CameraModel | None,
+    thermal_fps: float = THERMAL_FPS,
+) -> Path:
+    """DIR/camera.toml: the [camera] section of the recording's frames folder and, with
+    a thermal camera, the [thermal] one of its thermal folder; the file's path."""
+    path = out_dir / "camera.toml"
+    thermal = None
+    if thermal_camera is not None:
+        thermal = (thermal_camera, f"frames:{(out_dir / 'thermal').resolve()}", thermal_fps)
+    write_camera_toml(camera, path, f"frames:{(out_dir / 'frames').resolve()}", fps, thermal)
+    return path
 
 
 class _WarmView:

@@ -18,10 +18,8 @@ import pytest
 
 import scenarios  # noqa: F401  (BLAS single-threaded before numpy, as rescue-sim does)
 from companion.config import Config
-from companion.config_load import load_config
 from mavlink_io.tlog import read_tlog
-from scenarios.camera import THERMAL_FPS, default_camera, default_thermal_camera, write_camera_toml
-from scenarios.inloop import InLoopCompanion
+from scenarios.inloop import InLoopCompanion, recording_config
 from scenarios.record import record
 from scenarios.worldfile import load_world_text
 
@@ -73,18 +71,6 @@ START_UNIX_S = 1_700_000_000.0
 FPS = 5.0
 
 
-def _config(out: Path) -> Config:
-    out.mkdir(parents=True, exist_ok=True)
-    write_camera_toml(
-        default_camera(),
-        out / "camera.toml",
-        f"frames:{out / 'frames'}",
-        FPS,
-        (default_thermal_camera(), f"frames:{out / 'thermal'}", THERMAL_FPS),
-    )
-    return load_config(out / "camera.toml")
-
-
 def _modes(tlog: Path) -> list[tuple[float, int]]:
     """The autopilot's custom mode at each change, from its HEARTBEATs in the tlog."""
     out: list[tuple[float, int]] = []
@@ -98,7 +84,7 @@ def _modes(tlog: Path) -> list[tuple[float, int]]:
 @pytest.fixture(scope="module")
 def looked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, InLoopCompanion]:
     out = tmp_path_factory.mktemp("looks_on")
-    companion = InLoopCompanion(_config(out), looks=True, thermal=True)
+    companion = InLoopCompanion(recording_config(out, FPS), looks=True, thermal=True)
     record(load_world_text(WORLD, "test"), out, fps=FPS, start_unix_s=START_UNIX_S,
            companion=companion)  # fmt: skip
     return out, companion
@@ -141,7 +127,7 @@ def test_with_looks_off_the_rover_drives_its_route_as_a_recording_without_anyone
     alone = tmp_path / "alone"
     record(world, alone, fps=FPS, start_unix_s=START_UNIX_S, thermal=False)
     off = tmp_path / "off"
-    config = _config(off)  # the cheap detector: what is driven is the question here
+    config = recording_config(off, FPS)  # the cheap detector: what is driven is the question here
     config = dataclasses.replace(
         config, detector=dataclasses.replace(config.detector, backend="classic")
     )
