@@ -26,16 +26,22 @@ from hq.registry import Registry
 from hq.view import build, hq_victims
 
 
+def _victim_arguments(p: argparse.ArgumentParser) -> None:
+    """The registry and the victim an action is about: one robot's, or an HQ victim's
+    (every robot's source of it)."""
+    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
+    p.add_argument("--robot", type=parse_sysid, help="robot system ID (with --victim)")
+    p.add_argument("--victim", type=int, help="the robot's victim ID (with --robot)")
+    p.add_argument("--id", type=int, dest="hq_id", help="HQ victim ID (every robot's source)")
+
+
 def mark_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rescue-hq mark",
         description="Record an operator decision; the running HQ sends it to the robot "
         "and resends until the robot acknowledges.",
     )
-    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
-    p.add_argument("--robot", type=parse_sysid, help="robot system ID (with --victim)")
-    p.add_argument("--victim", type=int, help="the robot's victim ID (with --robot)")
-    p.add_argument("--id", type=int, dest="hq_id", help="HQ victim ID (every robot's source)")
+    _victim_arguments(p)
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--rescued", action="store_true")
     what.add_argument("--false-alarm", action="store_true")
@@ -50,10 +56,7 @@ def look_parser() -> argparse.ArgumentParser:
         "HQ sends it until the robot acknowledges. The robot does it only with closer looks "
         "on, armed and in AUTO; with looks off it says so and answers REJECTED.",
     )
-    p.add_argument("--db", type=Path, default=Path(DEFAULT_DB))
-    p.add_argument("--robot", type=parse_sysid, help="robot system ID (with --victim)")
-    p.add_argument("--victim", type=int, help="the robot's victim ID (with --robot)")
-    p.add_argument("--id", type=int, dest="hq_id", help="HQ victim ID (every robot's source)")
+    _victim_arguments(p)
     return p
 
 

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from hq.simrobot import SimRobot
+from mavlink_io.dialect import RESCUE_OPERATOR_ACTION_ID
 
 REPO = Path(__file__).resolve().parents[1]
 ACCEPTED, DUPLICATE, REJECTED = 0, 1, 2
@@ -120,6 +121,19 @@ def acks_waiting(robot: SimRobot) -> list[object]:
     while batch := robot.receive(0.0):
         out += [rx.msg for rx in batch if rx.msg.get_type() == "RESCUE_ACK"]
     return out
+
+
+def answer_action(robot: SimRobot, action: object, result: int) -> None:
+    """The robot acknowledges an operator action it received, with ``result``."""
+    robot.send(
+        robot.m.MAVLink_rescue_ack_message(
+            action.get_srcSystem(),  # type: ignore[attr-defined]
+            action.get_srcComponent(),  # type: ignore[attr-defined]
+            RESCUE_OPERATOR_ACTION_ID,
+            action.action_seq,  # type: ignore[attr-defined]
+            result,
+        )
+    )
 
 
 def ack_for(robot: SimRobot, seq: int) -> object:

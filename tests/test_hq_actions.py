@@ -14,13 +14,21 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from hqproc import ACK_TIMEOUT_S, DUPLICATE, REJECTED, REPO, HqProcess, ack_for, hq_starter
+from hqproc import (
+    ACK_TIMEOUT_S,
+    DUPLICATE,
+    REJECTED,
+    REPO,
+    HqProcess,
+    ack_for,
+    answer_action,
+    hq_starter,
+)
 
 from fusion.types import TrackState
 from hq.registry import Registry
 from hq.simrobot import SimRobot
 from hq.view import hq_victims
-from mavlink_io.dialect import RESCUE_OPERATOR_ACTION_ID
 
 
 @pytest.fixture
@@ -35,18 +43,6 @@ def _mark(db: Path, robot: int, victim: int) -> None:
         cwd=REPO, capture_output=True, text=True, timeout=30,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-
-
-def _answer(robot: SimRobot, action: object, result: int) -> None:
-    robot.send(
-        robot.m.MAVLink_rescue_ack_message(
-            action.get_srcSystem(),  # type: ignore[attr-defined]
-            action.get_srcComponent(),  # type: ignore[attr-defined]
-            RESCUE_OPERATOR_ACTION_ID,
-            action.action_seq,  # type: ignore[attr-defined]
-            result,
-        )
-    )
 
 
 def test_action_numbers_are_not_reused_on_a_new_registry(start_hq, tmp_path: Path) -> None:
@@ -75,12 +71,12 @@ def test_a_rejected_action_is_reported_rejected(start_hq) -> None:
             ack_for(robot, report.report_seq)
         _mark(hq.db, 6, 1)
         first = robot.wait_for("RESCUE_OPERATOR_ACTION", ACK_TIMEOUT_S, victim_id=1).msg
-        _answer(robot, first, REJECTED)
+        answer_action(robot, first, REJECTED)
         line = hq.wait_line(f"action {first.action_seq} ", ACK_TIMEOUT_S)
         assert "REJECTED by robot 6" in line and "acknowledged" not in line
         _mark(hq.db, 6, 2)
         second = robot.wait_for("RESCUE_OPERATOR_ACTION", ACK_TIMEOUT_S, victim_id=2).msg
-        _answer(robot, second, DUPLICATE)  # applied before; its first ack was lost
+        answer_action(robot, second, DUPLICATE)  # applied before; its first ack was lost
         line = hq.wait_line(f"action {second.action_seq} ", ACK_TIMEOUT_S)
         assert "acknowledged by robot 6" in line
     assert hq.stop() == 0

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from hqproc import ACK_TIMEOUT_S, REJECTED, REPO, HqProcess, ack_for, hq_starter
+from hqproc import ACK_TIMEOUT_S, REJECTED, REPO, HqProcess, ack_for, answer_action, hq_starter
 
 from fusion.types import TrackState
 from hq import cli, wire
@@ -24,7 +24,6 @@ from hq.simrobot import SimRobot
 from hq.view import hq_victims
 from mavlink_io import dialect
 from mavlink_io.codec import Codec
-from mavlink_io.dialect import RESCUE_OPERATOR_ACTION_ID
 
 M = dialect.load()
 ROBOT = 5
@@ -47,18 +46,6 @@ def _status(looks: tuple[int, int, int, int, int] | None, flags: int = 0b111) ->
     if looks is None:  # what a robot older than the look counts sends
         return M.MAVLink_rescue_status_message(*base)
     return M.MAVLink_rescue_status_message(*base, *looks)
-
-
-def _answer(robot: SimRobot, action: object, result: int) -> None:
-    robot.send(
-        robot.m.MAVLink_rescue_ack_message(
-            action.get_srcSystem(),  # type: ignore[attr-defined]
-            action.get_srcComponent(),  # type: ignore[attr-defined]
-            RESCUE_OPERATOR_ACTION_ID,
-            action.action_seq,  # type: ignore[attr-defined]
-            result,
-        )
-    )
 
 
 def test_look_and_looks_reach_the_robot_and_its_answers_and_counts_are_kept(
@@ -88,7 +75,7 @@ def test_look_and_looks_reach_the_robot_and_its_answers_and_counts_are_kept(
         assert _hq_cli("look", "--db", db, "--id", "1").returncode == 0
         refused = robot.wait_for("RESCUE_OPERATOR_ACTION", ACK_TIMEOUT_S, action=5).msg
         assert refused.action_seq > look.action_seq
-        _answer(robot, refused, REJECTED)
+        answer_action(robot, refused, REJECTED)
         line = hq.wait_line(f"action {refused.action_seq} ", ACK_TIMEOUT_S)
         assert f"REJECTED by robot {ROBOT}" in line
         assert _hq_cli("looks", "--db", db, "--robot", str(ROBOT), "on").returncode == 0
