@@ -125,7 +125,7 @@ def test_a_client_above_descriptor_1023_gets_the_feed(
         publisher = _publish_moves(server, 1000)
         assert not publisher.is_alive(), "publish() blocked the HQ's main thread"
         last = 47.0 + 1000 * 1e-6
-        client.read_for(10.0, lambda: client.lat_deg.get("F00001") == pytest.approx(last))
+        client.read_for(10.0, lambda: client.lat_deg.get("F00001") == pytest.approx(last, abs=1e-7))
         assert not client.closed_by_server
         assert client.lat_deg["F00001"] == pytest.approx(last, abs=1e-7)
     finally:
