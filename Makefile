@@ -49,8 +49,10 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy companion mavlink_io fusion scenarios hq npmfetch
 
+# --durations: every run, CI's included, names the slowest tests (the run's goal is
+# under 10 minutes on 2 cores).
 pytest: $(STAMP) $(MODELS)
-	$(BIN)/python -m pytest -q -n auto
+	$(BIN)/python -m pytest -q -n auto --durations=15
 
 bench: $(STAMP) $(MODELS)
 	$(BIN)/python -m bench
