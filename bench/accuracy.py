@@ -116,20 +116,12 @@ its seven fixes, its first three and the late stray one, lie 0.9-1.5 m from it).
 
 Since 2026-11-29 every mission is recorded and replayed with both cameras (the
 thermal camera's frames beside the colour ones, issue 41), and the suite has the
-four thermal missions; the table below is the first full run so. Replayed from the
-same recordings just before: 27 of 29 found, 15 false victims (13 of them in the two
-warm-things missions: pieces of heated floors, imprints, a dog), urgency right for 24
-of 27, median error 0.17 m. Then a victim only the thermal camera has found became
-confirmed only once a find of it was not cut by the frame's side (docs/VISION.md,
-"Thermal", step 7): 5 of those false victims (a heated floor the rover drives onto,
-two pieces of another and an imprint seen only at the frame's edge, and in ``seed1``
-a warm piece placed 1.8 m outside the room) went, and no
-victim. The run below, on fresh recordings, has the same figures. What still makes
-false victims: the dogs, which the person models take for a person too; an imprint
-seen for 8 s, too short to see it cool; the far edge or a corner of a heated floor
-seen whole as a strip of 2-5 rows; in ``thermal_warm_things2`` a colour body with
-warmth just beside a heated floor. The two duplicate IDs (``wide_lens``,
-``lawnmower``) were there before the rule.
+four thermal missions; the table below is the first full run so. The false victims
+are nearly all in the two warm-things missions: pieces of heated floors, imprints,
+the dogs (which the person models take for a person too). Tried the same day and not
+kept: a victim only the thermal camera has found confirmed only once seen not cut by
+the frame's side, which took 5 of them and no suite victim, but never reported a
+person under a blanket beside the route (docs/VISION.md, "Thermal").
 """
 
 from __future__ import annotations

@@ -248,7 +248,6 @@ class Pipeline:
             quality=det.score,
             range_m=fix.range_m,
             part_only=bool(PARTS & set(det.cues)) and "person" not in det.cues,
-            cut_by_frame=cut,
         )
 
 

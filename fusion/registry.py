@@ -138,7 +138,7 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 #                "body_hits": int, "part_hits": int, "seen_with": [track_id, ...],
 #                "fixes": [[t_unix_s, north_m, east_m], ...],
 #                "warm_hits": int, "cues": int (a fusion.types.Cue bitmask),
-#                "colour_looks": int, "whole_hits": int}]}
+#                "colour_looks": int}]}
 #
 # "seen_with" was added to version 1 on 2026-11-27 (a snapshot written before reads as
 # []), and "body_seen": bool with it, which "body_hits" and "part_hits" (detections as
@@ -152,9 +152,7 @@ def moved_beyond(victim: Victim, north_m: float, east_m: float, n_sigma: float) 
 # track) were added on 2026-11-29; a snapshot without them reads as 0 warm hits and
 # the colour cues its body and part hits imply. "colour_looks" (clear colour looks that
 # found nothing at a track only the thermal camera found) was added on 2026-11-29 too;
-# without it, 0. "whole_hits" (detections not cut by the frame's side) was added on
-# 2026-11-29 as well; a snapshot without it reads as every detection whole (its
-# tracks were confirmed, or not, without the rule that needs one).
+# without it, 0.
 
 _ALL_CUES = Cue.COLOUR_BODY | Cue.COLOUR_PART | Cue.WARM
 SNAPSHOT_FORMAT = "rescue-companion/victim-tracker"
@@ -186,7 +184,6 @@ class TrackRecord:
     seen_with: tuple[int, ...] = ()  # confirmed tracks detected in a frame with it
     fixes: tuple[tuple[float, float, float], ...] = ()  # (t_unix_s, north_m, east_m)
     warm_hits: int = 0  # detections by the thermal camera
-    whole_hits: int = 0  # detections not cut by the frame's side
     cues: Cue = NO_CUES  # which sensing has seen it
     colour_looks: int = 0  # clear colour looks that found nothing (a warm-only track)
 
@@ -218,7 +215,6 @@ def encode(next_victim_id: int, next_track_id: int, records: list[TrackRecord]) 
                 "seen_with": list(r.seen_with),
                 "fixes": [list(f) for f in r.fixes],
                 "warm_hits": r.warm_hits,
-                "whole_hits": r.whole_hits,
                 "cues": int(r.cues),
                 "colour_looks": r.colour_looks,
             }
@@ -333,8 +329,6 @@ def _record(obj: Any, where: str) -> TrackRecord:
         _local(north_m, east_m, f"{where}.fixes[{i}]")
     warm_hits = _int(obj, "warm_hits", where, 0) if "warm_hits" in obj else 0
     colour_looks = _int(obj, "colour_looks", where, 0) if "colour_looks" in obj else 0
-    observations = _int(obj, "observations", where, 1)
-    whole_hits = _int(obj, "whole_hits", where, 0) if "whole_hits" in obj else observations
     if "cues" in obj:
         cues_raw = _int(obj, "cues", where, 0)
         if cues_raw & ~int(_ALL_CUES):
@@ -352,7 +346,7 @@ def _record(obj: Any, where: str) -> TrackRecord:
         p=_matrix(_get(obj, "P", where), f"{where}.P"),
         t_filter_unix_s=_float(_get(obj, "t_filter_unix_s", where), f"{where}.t_filter_unix_s"),
         log_odds=_float(_get(obj, "log_odds", where), f"{where}.log_odds"),
-        observations=observations,
+        observations=_int(obj, "observations", where, 1),
         first_seen_unix_s=_float(
             _get(obj, "first_seen_unix_s", where), f"{where}.first_seen_unix_s"
         ),
@@ -366,7 +360,6 @@ def _record(obj: Any, where: str) -> TrackRecord:
         seen_with=tuple(sorted(set(seen_with))),
         fixes=fixes,
         warm_hits=warm_hits,
-        whole_hits=whole_hits,
         cues=cues,
         colour_looks=colour_looks,
     )

@@ -51,8 +51,6 @@ class Track:
     part_hits: int = field(default=0, repr=False)
     # Detections by the thermal camera (also counted above, as a body or a part).
     warm_hits: int = field(default=0, repr=False)
-    # Detections not cut by the frame's side (any camera).
-    whole_hits: int = field(default=0, repr=False)
     # Clear colour looks (lit, in range) at it that found nothing, while only the
     # thermal camera had found it.
     colour_looks: int = field(default=0, repr=False)
@@ -153,7 +151,6 @@ def record_of(t: Track) -> TrackRecord:
         seen_with=tuple(sorted(t.seen_with)),
         fixes=tuple(t.fixes),
         warm_hits=t.warm_hits,
-        whole_hits=t.whole_hits,
         colour_looks=t.colour_looks,
         cues=t.cues,
     )
@@ -180,7 +177,6 @@ def track_of(rec: TrackRecord, urgency_window: int, position_fixes: int) -> Trac
         part_hits=rec.part_hits,
         fixes=deque(rec.fixes, maxlen=position_fixes),
         warm_hits=rec.warm_hits,
-        whole_hits=rec.whole_hits,
         colour_looks=rec.colour_looks,
         cues=rec.cues,
     )

@@ -44,8 +44,7 @@ Per ``update`` (one processed camera frame, with or without detections):
    unmatched observations start tentative tracks;
 4. tentative tracks in view (``in_view(north, east)``: the pipeline's counts only
    points within ``miss_max_range_m``) but not detected gain ``miss_log_odds``;
-   they are confirmed at ``confirm_log_odds`` (one found only warm, once it has
-   been seen not cut by the frame's side) and die below ``delete_log_odds`` or
+   they are confirmed at ``confirm_log_odds`` and die below ``delete_log_odds`` or
    when unseen for ``tentative_timeout_s``;
 5. confirmed victims are never deleted; unseen for ``not_seen_recently_s`` they
    become NOT_SEEN_RECENTLY, and CONFIRMED again when seen;
@@ -271,8 +270,6 @@ class VictimTracker:
             t.body_hits += 1
         if obs.sensor == Sensor.THERMAL:
             t.warm_hits += 1
-        if not obs.cut_by_frame:
-            t.whole_hits += 1
         t.cues |= obs.cue
         if obs.part_only and t.part_hits <= t.body_hits:
             return  # a lone hand says little of how much shows of a body seen as often
@@ -335,7 +332,6 @@ class VictimTracker:
             body_hits=0 if obs.part_only else 1,
             part_hits=1 if obs.part_only else 0,
             warm_hits=1 if obs.sensor == Sensor.THERMAL else 0,
-            whole_hits=0 if obs.cut_by_frame else 1,
             cues=obs.cue,
             fixes=deque(
                 [(obs.t_unix_s, obs.north_m, obs.east_m)], maxlen=self._params.position_fixes
@@ -365,7 +361,7 @@ class VictimTracker:
         confirmed = [t for t in live if t.state in _CONFIRMED]
         for t in live:
             if t.state == TrackState.TENTATIVE:
-                if t.log_odds >= p.confirm_log_odds and _seen_whole(t):
+                if t.log_odds >= p.confirm_log_odds:
                     if not self._near_a_victim(t, confirmed):
                         self._confirm(t, events)
                         confirmed.append(t)
@@ -436,7 +432,6 @@ class VictimTracker:
         older.body_hits += younger.body_hits
         older.part_hits += younger.part_hits
         older.warm_hits += younger.warm_hits
-        older.whole_hits += younger.whole_hits
         older.colour_looks += younger.colour_looks
         older.cues |= younger.cues
         older.take_fixes(younger)
@@ -496,12 +491,3 @@ class VictimTracker:
 def _part_of_body(t: Track, obs: Observation) -> bool:
     """A lone part (a hand, a face) matched to a victim already seen as a body."""
     return obs.part_only and t.body_hits > 0
-
-
-def _seen_whole(t: Track) -> bool:
-    """Whether ``t`` may be confirmed as far as its views go: a track only the thermal
-    camera has found needs one of them not cut by the frame's side. A warm region
-    cut by the side may go on beyond it, its size unknown: a heated floor the rover
-    passes or drives onto shows as such a piece in every frame, a person is seen
-    whole on the way past. The colour models see a person's shape in a part of it."""
-    return t.cues != Cue.WARM or t.whole_hits > 0

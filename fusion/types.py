@@ -239,9 +239,6 @@ class Observation:
     # is, and how much of a body it shows, but not where a body seen whole lies.
     part_only: bool = False
     sensor: Sensor = Sensor.COLOUR
-    # The detection was cut by the frame's left or right side: more of it may lie
-    # beyond, so its size (and for warmth, what it is) is unknown.
-    cut_by_frame: bool = False
 
     @property
     def cue(self) -> Cue:

@@ -25,7 +25,6 @@ def obs(
     sensor: Sensor = Sensor.COLOUR,
     part_only: bool = False,
     visibility_pct: float = 80.0,
-    cut_by_frame: bool = False,
 ) -> Observation:
     return Observation(
         T0 + t,
@@ -37,7 +36,6 @@ def obs(
         3.0,
         part_only=part_only,
         sensor=sensor,
-        cut_by_frame=cut_by_frame,
     )
 
 
@@ -92,47 +90,6 @@ def test_a_colour_phantom_the_thermal_camera_sees_cold_is_not_confirmed() -> Non
 
     assert run(thermal=False) == [1]
     assert run(thermal=True) == []
-
-
-def _warm_pieces(tracker: VictimTracker, frames: range, cut: bool) -> list[int]:
-    """One warm region seen by the thermal camera in every frame; the victims confirmed."""
-    confirmed = []
-    for k in frames:
-        events = tracker.update(
-            [obs(6.0, 2.0, k, Sensor.THERMAL, cut_by_frame=cut)], T0 + k, always, Sensor.THERMAL
-        )
-        confirmed += [e.victim.victim_id for e in events if e.kind == EventKind.CONFIRMED]
-    return confirmed
-
-
-def test_a_warm_region_only_ever_cut_by_the_frame_is_not_a_victim_until_seen_whole() -> None:
-    # A heated floor the rover drives past shows as a piece cut by the frame's side in
-    # every frame; a person is seen whole on the way past, and then confirmed at once.
-    tracker = VictimTracker(PARAMS)
-    assert _warm_pieces(tracker, range(10), cut=True) == []
-    held = tracker.victims(include_tentative=True)
-    assert len(held) == 1 and held[0].observations == 10  # followed, held tentative
-    assert _warm_pieces(tracker, range(10, 11), cut=False) == [1]
-    assert tracker.victims()[0].cues == Cue.WARM
-
-
-def test_a_body_the_colour_camera_sees_cut_by_the_frame_is_confirmed() -> None:
-    # The person models see a person's shape in the part inside the frame.
-    tracker = VictimTracker(PARAMS)
-    for k in range(4):
-        tracker.update([obs(2.0, 3.0, k, cut_by_frame=True)], T0 + k, always)
-    assert [v.victim_id for v in tracker.victims()] == [1]
-
-
-def test_whole_views_survive_a_snapshot_and_old_snapshots_count_every_view_whole() -> None:
-    tracker = VictimTracker(PARAMS)
-    assert _warm_pieces(tracker, range(5), cut=True) == []
-    snap = tracker.snapshot()
-    assert snap["tracks"][0]["whole_hits"] == 0
-    assert _warm_pieces(VictimTracker.restore(PARAMS, copy.deepcopy(snap)), range(5, 7), True) == []
-    old = copy.deepcopy(snap)
-    del old["tracks"][0]["whole_hits"]  # written before the rule: confirmed without it
-    assert _warm_pieces(VictimTracker.restore(PARAMS, old), range(5, 6), cut=True) == [1]
 
 
 def test_cues_survive_a_snapshot_and_old_snapshots_read_their_colour_cues() -> None:
