@@ -27,6 +27,14 @@ order, as the service's mailbox hands them over: ``thermal_ms`` is that step
 ``colour_and_thermal_ms_per_frame`` is the colour and thermal work together per
 colour frame (target: 5 ms per thermal frame, 60 ms together). ``peak_rss_mb`` is
 the process's peak resident memory with the models loaded (target 400 MB).
+Since 2026-11-29 (later) the person models' far-band search, which asks every colour
+frame's geometry for the metres per pixel of 60 rows, gets them in one vectorised
+pass (``fusion.geolocate.ground_sample_distances_m``, the same numbers) instead of
+one ray fix with 11 perturbed rays per row: 1.3 ms a frame instead of 25 ms. The
+same benchmark on the code just before, run the same day: pipeline 86.9 ms median
+a colour frame, colour and thermal together 93.2 ms. The run before that (code
+a5c0ae7, the same search) had measured 57.5 and 63.2 ms; why the search cost so much
+less then was not found.
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ from fusion.geolocate import (
     expected_body_area_px,
     geolocate,
     ground_sample_distance_m,
+    ground_sample_distances_m,
     in_view,
 )
 from fusion.params import GeolocationParams
@@ -238,6 +239,35 @@ def test_ground_sample_distance_matches_finite_steps() -> None:
     assert far > gsd
     with pytest.raises(GeolocationRejected):
         ground_sample_distance_m(camera, pose, 320.0, 10.0, PARAMS)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    roll_deg=st.floats(-10.0, 10.0),
+    pitch_deg=st.floats(-40.0, 5.0),
+    yaw_deg=st.floats(-180.0, 180.0),
+    k1=st.floats(-0.3, 0.1),
+)
+def test_many_ground_sample_distances_at_once_are_the_one_pixel_answers(
+    roll_deg: float, pitch_deg: float, yaw_deg: float, k1: float
+) -> None:
+    # The far-band search of every colour frame asks for a column of them at once; it
+    # must be the same numbers, and NaN exactly where one pixel's call is rejected
+    # (above the horizon, beyond max_range_m, nearer than min_range_m).
+    camera = _camera(pitch_deg, (k1, 0.0, 0.0, 0.0, 0.0))
+    pose = dataclasses.replace(
+        _pose(), roll_rad=math.radians(roll_deg), yaw_rad=math.radians(yaw_deg)
+    )
+    pixels = np.array([(u, v) for u in (3.0, 320.0, 637.0) for v in range(2, 480, 6)], float)
+    many = ground_sample_distances_m(camera, pose, pixels, PARAMS)
+    for (u, v), got in zip(pixels, many, strict=True):
+        try:
+            want = ground_sample_distance_m(camera, pose, u, v, PARAMS)
+        except GeolocationRejected:
+            assert math.isnan(got), (u, v, got)
+        else:
+            assert got == pytest.approx(want, rel=1e-12), (u, v)
+    assert ground_sample_distances_m(camera, pose, np.zeros((0, 2)), PARAMS).shape == (0,)
 
 
 def test_expected_body_area_top_down_is_exact() -> None:

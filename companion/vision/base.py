@@ -78,8 +78,10 @@ class FrameGeometry:
         pixels_of_floor: PixelMap | None = None,
         area_along: Callable[[float, float, float], float | None] | None = None,
         along_ray: RayMap | None = None,
+        metres_per_px_many: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self._mpp = metres_per_px
+        self._mpp_many = metres_per_px_many
         self._area = expected_body_area_px
         self._floor = floor_ne_m
         self._plane = plane_ne_m
@@ -102,6 +104,18 @@ class FrameGeometry:
     def metres_per_px(self, u_px: float, v_px: float) -> float | None:
         """Floor metres spanned by one pixel at (u, v); None off the usable floor."""
         return self._cached("mpp", self._mpp, u_px, v_px)
+
+    def metres_per_px_column(self, u_px: float, vs_px: list[int]) -> list[float | None]:
+        """``metres_per_px`` at (u, v) for each row v, in one pass where the geometry
+        can (cached per cell alike: the same values as one call per row)."""
+        keys = [("mpp", int(u_px) // _CACHE_CELL_PX, v // _CACHE_CELL_PX) for v in vs_px]
+        todo = [v for v, key in zip(vs_px, keys, strict=True) if key not in self._cache]
+        if todo and self._mpp_many is not None and math.isfinite(u_px):
+            values = self._mpp_many(np.array([(u_px, v) for v in todo], np.float64))
+            for v, value in zip(todo, values.tolist(), strict=True):
+                key = ("mpp", int(u_px) // _CACHE_CELL_PX, v // _CACHE_CELL_PX)
+                self._cache.setdefault(key, value if math.isfinite(value) else None)
+        return [self.metres_per_px(u_px, v) for v in vs_px]
 
     def expected_body_area_px(
         self, u_px: float, v_px: float, heading_rad: float | None = None
@@ -195,7 +209,12 @@ class FrameGeometry:
         silhouette a whole body would show, not with its bounding rectangle.
         """
         from fusion.errors import GeolocationRejected
-        from fusion.geolocate import expected_body_area_px, geolocate, ground_sample_distance_m
+        from fusion.geolocate import (
+            expected_body_area_px,
+            geolocate,
+            ground_sample_distance_m,
+            ground_sample_distances_m,
+        )
 
         def mpp(u: float, v: float) -> float | None:
             try:
@@ -229,6 +248,7 @@ class FrameGeometry:
             _pixel_map(camera, pose, params),
             area_along,
             _ray_map(camera, pose, params),
+            lambda px: ground_sample_distances_m(camera, pose, px, params),
         )
 
 

@@ -175,10 +175,11 @@ class PeopleDetector:
         rows whose floor lies farther than ``far_band_mpp`` (where a lying body is a
         thin strip the whole-frame pass cannot resolve)."""
         p = self.params
+        vs = list(range(4, h, 8))
         rows = [
             v
-            for v in range(4, h, 8)
-            if (m := geometry.metres_per_px(w / 2, v)) is not None and m >= p.far_band_mpp
+            for v, m in zip(vs, geometry.metres_per_px_column(w / 2, vs), strict=True)
+            if m is not None and m >= p.far_band_mpp
         ]
         if not rows:
             return []
