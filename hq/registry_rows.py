@@ -50,9 +50,21 @@ def cell_optional_float(value: object) -> float | None:
     return None if value is None else cell_float(value)
 
 
+def cell_name(value: object) -> str:
+    """A row's key cell as an unusable row's name shows it, on one line: a whole
+    number as it is, anything else (text with a newline, bytes, a float) as its
+    repr, at most 20 characters."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    return repr(value)[:20]
+
+
 def picture_row(robot: object, victim: object, kind: object = Sensor.COLOUR) -> str:
     """How a picture row is named when it is unusable (a colour one as before kinds)."""
-    return f"pictures robot {robot} victim {victim}" + ("" if kind == Sensor.COLOUR else f" {kind}")
+    name = f"pictures robot {cell_name(robot)} victim {cell_name(victim)}"
+    if kind == Sensor.COLOUR:
+        return name
+    return f"{name} {kind if isinstance(kind, Sensor) else cell_name(kind)}"
 
 
 def cell_kind(value: object) -> Sensor:
@@ -97,7 +109,7 @@ def sources(db: sqlite3.Connection, bad_row: BadRow) -> list[Source]:
             )
             out.append(source)
         except (BadRecord, TypeError, ValueError) as exc:
-            bad_row(f"sources robot {robot} victim {victim}", exc)
+            bad_row(f"sources robot {cell_name(robot)} victim {cell_name(victim)}", exc)
     return out
 
 
@@ -127,7 +139,7 @@ def actions(db: sqlite3.Connection, bad_row: BadRow, *, pending_only: bool) -> l
                 )
             )
         except (TypeError, ValueError) as exc:
-            bad_row(f"action {a}", exc)
+            bad_row(f"action {cell_name(a)}", exc)
     return out
 
 
@@ -146,11 +158,11 @@ def robots(db: sqlite3.Connection, bad_row: BadRow) -> list[Robot]:
                     GlobalOrigin(cell_float(lat), cell_float(lon), cell_float(alt))
                 )
         except (TypeError, ValueError) as exc:
-            bad_row(f"origin of robot {sysid}", exc)
+            bad_row(f"origin of robot {cell_name(sysid)}", exc)
         try:
             parsed = RobotStatus.from_json(status) if status else None
         except BadRecord as exc:
-            bad_row(f"status of robot {sysid}", exc)
+            bad_row(f"status of robot {cell_name(sysid)}", exc)
         try:
             out.append(
                 Robot(
@@ -164,7 +176,7 @@ def robots(db: sqlite3.Connection, bad_row: BadRow) -> list[Robot]:
                 )
             )
         except (TypeError, ValueError) as exc:
-            bad_row(f"robot {sysid}", exc)
+            bad_row(f"robot {cell_name(sysid)}", exc)
     return out
 
 
@@ -207,7 +219,7 @@ def first_received_unix_s(db: sqlite3.Connection, bad_row: BadRow) -> dict[tuple
         try:
             out[(cell_int(r), cell_int(v))] = cell_float(t)
         except BadRecord as exc:
-            bad_row(f"reports robot {r} victim {v}", exc)
+            bad_row(f"reports robot {cell_name(r)} victim {cell_name(v)}", exc)
     return out
 
 
@@ -230,5 +242,5 @@ def coverage(db: sqlite3.Connection, bad_row: BadRow) -> dict[int, list[tuple[in
     for r, count in db.execute(
         f"SELECT robot_sysid, COUNT(*) FROM coverage WHERE NOT ({_COVERAGE_OK}) GROUP BY 1"
     ):
-        bad_row(f"coverage of robot {str(r)[:20]}", BadRecord(f"{count} cell(s) unusable"))
+        bad_row(f"coverage of robot {cell_name(r)}", BadRecord(f"{count} cell(s) unusable"))
     return out
