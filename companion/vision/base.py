@@ -108,9 +108,11 @@ class FrameGeometry:
     def metres_per_px_column(self, u_px: float, vs_px: list[int]) -> list[float | None]:
         """``metres_per_px`` at (u, v) for each row v, in one pass where the geometry
         can (cached per cell alike: the same values as one call per row)."""
+        if not math.isfinite(u_px):
+            return [None] * len(vs_px)
         keys = [("mpp", int(u_px) // _CACHE_CELL_PX, v // _CACHE_CELL_PX) for v in vs_px]
         todo = [v for v, key in zip(vs_px, keys, strict=True) if key not in self._cache]
-        if todo and self._mpp_many is not None and math.isfinite(u_px):
+        if todo and self._mpp_many is not None:
             values = self._mpp_many(np.array([(u_px, v) for v in todo], np.float64))
             for v, value in zip(todo, values.tolist(), strict=True):
                 key = ("mpp", int(u_px) // _CACHE_CELL_PX, v // _CACHE_CELL_PX)
