@@ -119,3 +119,19 @@ def test_the_working_grid_keeps_far_rows_and_merges_near_ones() -> None:
     assert covered == 480 - grid.bands[0][0]
     small = grid.sample(np.zeros((480, 640, 3), np.uint8))
     assert small.shape == (grid.work_h, 320, 3)
+
+
+def test_a_column_of_metres_per_pixel_is_the_rows_asked_one_by_one() -> None:
+    # The person models' far-band search asks each frame for a column at once: the
+    # same answers as one call per row, off the floor (None) exactly where those are,
+    # and cached alike (a later single call gets the same number).
+    pose = PoseSample(0.0, 0.0, 1.0, 1.0, -VEHICLE_HEIGHT_M, 0.02, -0.03, 0.4)
+    camera, params = default_camera(), GeolocationParams()
+    rows = list(range(0, 480, 5))
+    column = FrameGeometry.from_pose(camera, pose, params).metres_per_px_column(320.0, rows)
+    one_by_one = FrameGeometry.from_pose(camera, pose, params)
+    assert column == [one_by_one.metres_per_px(320.0, v) for v in rows]
+    assert any(m is None for m in column) and any(m is not None for m in column)
+    assert FrameGeometry.from_pose(camera, pose, params).metres_per_px_column(math.inf, rows) == [
+        None
+    ] * len(rows)

@@ -41,6 +41,12 @@ DEFAULT_SILHOUETTE_FILL = 0.75
 
 _CACHE_CELL_PX = 8  # FrameGeometry answers are cached per 8x8-pixel cell
 
+
+def _cell(kind: str, u_px: float, v_px: float) -> tuple[str, int, int]:
+    """The cache key of a FrameGeometry answer: its kind and the pixel's 8x8 cell."""
+    return (kind, int(u_px) // _CACHE_CELL_PX, int(v_px) // _CACHE_CELL_PX)
+
+
 FloorMap = Callable[[np.ndarray], np.ndarray]  # pixels (N, 2) -> floor (N, 2), NaN off it
 PlaneMap = Callable[[np.ndarray, float], np.ndarray]  # (pixels, height_m) -> (N, 2) on that plane
 PixelMap = Callable[[np.ndarray], np.ndarray]  # floor (N, 2) -> pixels (N, 2), NaN if not in front
@@ -95,7 +101,7 @@ class FrameGeometry:
     ) -> float | None:
         if not (math.isfinite(u) and math.isfinite(v)):
             return None
-        key = (kind, int(u) // _CACHE_CELL_PX, int(v) // _CACHE_CELL_PX)
+        key = _cell(kind, u, v)
         if key not in self._cache:
             value = fn(u, v)
             self._cache[key] = None if value is None else float(value)
@@ -110,13 +116,14 @@ class FrameGeometry:
         can (cached per cell alike: the same values as one call per row)."""
         if not math.isfinite(u_px):
             return [None] * len(vs_px)
-        keys = [("mpp", int(u_px) // _CACHE_CELL_PX, v // _CACHE_CELL_PX) for v in vs_px]
-        todo = [v for v, key in zip(vs_px, keys, strict=True) if key not in self._cache]
+        todo: dict[tuple[str, int, int], int] = {}  # uncached cells: their first row asked
+        for v in vs_px:
+            if (key := _cell("mpp", u_px, v)) not in self._cache:
+                todo.setdefault(key, v)
         if todo and self._mpp_many is not None:
-            values = self._mpp_many(np.array([(u_px, v) for v in todo], np.float64))
-            for v, value in zip(todo, values.tolist(), strict=True):
-                key = ("mpp", int(u_px) // _CACHE_CELL_PX, v // _CACHE_CELL_PX)
-                self._cache.setdefault(key, value if math.isfinite(value) else None)
+            values = self._mpp_many(np.array([(u_px, v) for v in todo.values()], np.float64))
+            for key, value in zip(todo, values.tolist(), strict=True):
+                self._cache[key] = value if math.isfinite(value) else None
         return [self.metres_per_px(u_px, v) for v in vs_px]
 
     def expected_body_area_px(
