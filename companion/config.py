@@ -353,6 +353,9 @@ class LooksConfig:
     look_s: float = 4.0  # time spent looking at the viewpoint
     look_budget_s: float = 60.0  # one look, from leaving the route to being back in AUTO
     mission_budget_s: float = 300.0  # all looks of this run together
+    # A look of the companion's own starts only while the looks so far took at most
+    # this share of the time the rover has driven its route (armed, in AUTO).
+    route_share_pct: float = 10.0
     stuck_s: float = 8.0  # no 0.2 m of progress towards the viewpoint for this long: stuck
     ack_timeout_s: float = 2.0  # a mode or mission command unanswered this long: aborted
     tentative_min_s: float = 5.0  # a tentative track this old deserves a look
@@ -368,6 +371,7 @@ class LooksConfig:
             "look_s",
             "look_budget_s",
             "mission_budget_s",
+            "route_share_pct",
             "stuck_s",
             "ack_timeout_s",
             "tentative_min_s",
@@ -390,6 +394,8 @@ class LooksConfig:
                 f"look_budget_s = {self.look_budget_s}: must not exceed "
                 f"mission_budget_s = {self.mission_budget_s}"
             )
+        if self.route_share_pct > 100:
+            raise ValueError(f"route_share_pct = {self.route_share_pct}: must be <= 100")
         if self.urgency_margin_pct > 20:
             raise ValueError(f"urgency_margin_pct = {self.urgency_margin_pct}: must be <= 20")
 

@@ -281,6 +281,33 @@ def test_the_time_budget_aborts_and_resumes_and_the_mission_budget_stops_new_loo
     assert _start(m2, victims2) == []
 
 
+def test_a_look_of_its_own_waits_until_the_looks_so_far_are_within_the_route_share() -> None:
+    m, victims = _machine_with_path()
+    m.counts.spent_s = 10.0  # one earlier look took 10 s: at 10 %, 100 s of route pay it
+    here = Rover(True, 0.0, 5.5, 0.0)
+    found = candidates(victims.values(), 10.0, S)
+    t = 0.0
+    while m.phase == Phase.IDLE:
+        t += 0.2
+        assert t < 200.0, "no look started"
+        m.step(t, here, _ap(t, ROVER_AUTO), found, victims)
+    assert 99.0 < m.route_s < 101.0 and t == pytest.approx(m.route_s, abs=0.3)
+    # Time in HOLD, disarmed or between distant steps is not route time.
+    m2, _ = _machine_with_path()
+    m2.step(0.0, here, _ap(0.0, ROVER_AUTO), [], victims)
+    m2.step(30.0, here, _ap(30.0, ROVER_AUTO), [], victims)  # a 30-s gap: 1 s at most
+    m2.step(30.5, here, _ap(30.5, ROVER_HOLD), [], victims)
+    m2.step(31.0, here, _ap(31.0, ROVER_AUTO, armed=False), [], victims)
+    assert m2.route_s == pytest.approx(1.0)
+    # The operator's own request is not held back by the share (it is theirs to spend).
+    m3, victims3 = _machine_with_path()
+    m3.counts.spent_s = 10.0
+    victims3[1] = _victim(1, TrackState.CONFIRMED, ne=(1.2, 3.0), victim_id=4)
+    m3.ask(1, 4, 100.0)
+    cmds, _ = m3.step(100.0, here, _ap(100.0, ROVER_AUTO), [], victims3)
+    assert cmds == [SetMode(ROVER_GUIDED)]
+
+
 def test_an_operator_mode_mid_look_ends_it_at_once_and_looks_stay_off() -> None:
     m, victims = _machine_with_path()
     _start(m, victims)
@@ -292,6 +319,7 @@ def test_an_operator_mode_mid_look_ends_it_at_once_and_looks_stay_off() -> None:
     cmds, says = m.step(101.5, rover, _ap(101.4, ROVER_HOLD, acks=acks), [], victims)
     assert cmds == [] and "operator switched to HOLD" in says[0].text
     assert m.switched_off and m.phase == Phase.IDLE
+    m.route_s = 1000.0  # a long route since: the time share is not what holds looks back
     victims[2] = _victim(2, ne=(-1.2, 2.0))
     assert m.step(102.0, rover, _ap(102.0, ROVER_AUTO), [], victims) == ([], [])
     found = candidates(victims.values(), 10.0, S)

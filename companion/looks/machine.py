@@ -11,7 +11,10 @@ the link is up, the vehicle is an ArduPilot Rover, armed and in AUTO, and the
 budgets allow; during a look, a mode the companion did not ask for ends it at once
 and switches looks off (``switched_off``) until the operator switches them on
 again; link loss, no progress (``stuck_s``), the look's time budget, or looks
-switched off abort it and resume the mission; no candidate is looked at twice.
+switched off abort it and resume the mission; no candidate is looked at twice. The
+time on the route (armed, in AUTO, no look under way) is counted: a look of the
+companion's own starts only while the looks so far took at most ``route_share_pct``
+of it, so a mission takes about that share longer (one look more at most).
 ``ask`` is the HQ operator's "look closer at victim N": that victim is the next
 look, ahead of the companion's own candidates, under the same rules.
 """
@@ -66,6 +69,7 @@ _SEVERITY_NOTICE = 5
 _SEVERITY_WARNING = 4
 _SEVERITY_CRITICAL = 2
 _TURN_MAX_S = 10.0  # facing the candidate takes at most this; then the look starts anyway
+_ROUTE_GAP_MAX_S = 1.0  # a longer gap between steps counts this much route time at most
 
 
 # -- the steps ---------------------------------------------------------------------------
@@ -124,6 +128,8 @@ class LookMachine:
         self.look: _Look | None = None
         self.last: _Look | None = None  # the last look that ended
         self.request: _Request | None = None  # the operator's victim, ahead of all others
+        self.route_s = 0.0  # time on the route: armed, in AUTO, no look under way
+        self._stepped_s: float | None = None
         self._said_not_ardupilot = False
 
     def set_enabled(self, enabled: bool) -> None:
@@ -167,6 +173,9 @@ class LookMachine:
         """``found``: this moment's candidates; ``victims``: every track by track ID."""
         if rover.ne is not None and self.phase == Phase.IDLE:
             self.path.add(*rover.ne)
+        if self._stepped_s is not None and self.phase == Phase.IDLE and _on_route(ap, now_s):
+            self.route_s += min(max(now_s - self._stepped_s, 0.0), _ROUTE_GAP_MAX_S)
+        self._stepped_s = now_s
         if self.look is None:
             return self._idle(now_s, rover, ap, found, victims)
         if self.request is not None:  # it waits for this look to end
@@ -199,12 +208,12 @@ class LookMachine:
         here = rover.ne
         if (
             here is None
-            or not ap.armed
-            or ap.mode != ROVER_AUTO
-            or not _fresh(ap, now_s)
+            or not _on_route(ap, now_s)
             or self.counts.spent_s + s.look_s >= s.mission_budget_s
         ):
             return [], []
+        if asked is None and self.counts.spent_s > s.route_share_pct / 100.0 * self.route_s:
+            return [], []  # the operator's look is theirs to spend; the companion's wait
         avoid = [(v.north_m, v.east_m) for v in victims.values() if v.state in LIVE_STATES]
         for c in found:
             again = c.track_id in self.looked and c is not asked  # the operator may ask again
@@ -454,6 +463,10 @@ class LookMachine:
         self.last = self.look
         self.look = None
         self.phase = Phase.IDLE
+
+
+def _on_route(ap: AutopilotView, now_s: float) -> bool:
+    return ap.armed and ap.mode == ROVER_AUTO and _fresh(ap, now_s)
 
 
 def _fresh(ap: AutopilotView, now_s: float) -> bool:
