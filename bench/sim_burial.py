@@ -157,12 +157,19 @@ class ThermalView:
     warm_px: int  # pixels of the body's warmth in the frame
     range_m: float
     bearing_rad: float
+    # The frames before it as the rover drives up to it along the bearing (farthest
+    # first), ``APPROACH_STEP_M`` apart: (pose, temps_c); none for a first sight.
+    approach: tuple[tuple[PoseSample, np.ndarray], ...] = ()
 
 
-def thermal_views(level_pct: int, seed: int = 0) -> Iterator[ThermalView]:
+APPROACH_STEP_M = 0.3  # a frame every 0.3 m as the rover drives up to a view
+
+
+def thermal_views(level_pct: int, seed: int = 0, approach_m: float = 0.0) -> Iterator[ThermalView]:
     """The thermal burial benchmark's views at one visible share: the colour
     benchmark's bodies and slabs for that level (the same random draws), from every
-    range and bearing where at least MIN_THERMAL_VIEW_PX warm pixels show."""
+    range and bearing where at least MIN_THERMAL_VIEW_PX warm pixels show; with
+    ``approach_m``, each with the frames of the last ``approach_m`` driven up to it."""
     rng = np.random.default_rng([seed, level_pct])
     camera = default_thermal_camera()
     key = 0
@@ -180,27 +187,52 @@ def thermal_views(level_pct: int, seed: int = 0) -> Iterator[ThermalView]:
                 shot = renderer.render(pose, 1.0, frame_key=key)
                 key += 1
                 px = shot.warm_px.get(v.victim_id, 0)
-                if px >= MIN_THERMAL_VIEW_PX:
-                    yield ThermalView(level_pct, v, pose, camera, shot.temps_c, px, rng_m, bearing)
+                if px < MIN_THERMAL_VIEW_PX:
+                    continue
+                approach = []
+                for j in range(round(approach_m / APPROACH_STEP_M), 0, -1):
+                    back = rng_m + j * APPROACH_STEP_M
+                    before = PoseSample(
+                        0.0,
+                        0.0,
+                        v.visible_north_m - back * math.cos(bearing),
+                        v.visible_east_m - back * math.sin(bearing),
+                        -VEHICLE_HEIGHT_M,
+                        0.0,
+                        0.0,
+                        bearing,
+                    )
+                    # Their own noise seeds, apart from the views' (which stay as they were).
+                    frame = renderer.render(before, 1.0, frame_key=1_000_000 + 16 * key + j)
+                    approach.append((before, frame.temps_c))
+                yield ThermalView(
+                    level_pct, v, pose, camera, shot.temps_c, px, rng_m, bearing, tuple(approach)
+                )
 
 
 def measure_thermal_level(
     level_pct: int,
-    detect: Callable[[np.ndarray, FrameGeometry], list[Detection]],
+    detect: Callable[[list[tuple[np.ndarray, FrameGeometry]]], list[Detection]],
     urgency: Callable[[Detection, FrameGeometry], Urgency | None],
     seed: int = 0,
+    approach_m: float = 0.0,
 ) -> dict[str, Any]:
-    """Recall and urgency of a thermal detector over ``thermal_views(level_pct)``:
-    ``detect(temps_c, geometry)`` gives its detections, ``urgency(detection,
+    """Recall and urgency of a thermal detector over ``thermal_views(level_pct,
+    seed, approach_m)``: ``detect(frames)`` gives its detections in the last of the
+    frames ((temps_c, geometry), the approach first), ``urgency(detection,
     geometry)`` the class the pipeline would give the find."""
     params = GeolocationParams()
     views = found = right = 0
-    for view in thermal_views(level_pct, seed):
+    for view in thermal_views(level_pct, seed, approach_m):
         views += 1
         v = view.victim
         geometry = FrameGeometry.from_pose(view.camera, view.pose, params)
+        frames = [
+            (temps_c, FrameGeometry.from_pose(view.camera, pose, params))
+            for pose, temps_c in view.approach
+        ]
         hit = None
-        for d in detect(view.temps_c, geometry):
+        for d in detect([*frames, (view.temps_c, geometry)]):
             try:
                 fix = geolocate(view.camera, view.pose, d.u_px, d.v_px, params)
             except GeolocationRejected:

@@ -28,6 +28,7 @@ from companion.reporting.policy import Decision, ReportPolicy
 from companion.sources.base import Frame
 from companion.sources.thermal import ThermalFrame
 from companion.vision.base import Detector, FrameGeometry
+from companion.vision.thermal import UNSETTLED
 from companion.vision.visibility import assess
 from fusion.camera import CameraModel, rotation_zyx
 from fusion.errors import GeolocationRejected, PoseUnavailable
@@ -248,6 +249,7 @@ class Pipeline:
             quality=det.score,
             range_m=fix.range_m,
             part_only=bool(PARTS & set(det.cues)) and "person" not in det.cues,
+            supports=UNSETTLED not in det.cues,
         )
 
 

@@ -260,7 +260,8 @@ class VictimTracker:
         if t.state in _ABSORBING:
             return  # the operator has decided: no support, urgency or events
         p = self._params
-        t.log_odds = min(p.max_log_odds, t.log_odds + p.hit_log_odds)
+        if obs.supports:
+            t.log_odds = min(p.max_log_odds, t.log_odds + p.hit_log_odds)
         if t.state == TrackState.NOT_SEEN_RECENTLY:
             t.state = TrackState.CONFIRMED
             events.append(TrackEvent(EventKind.SEEN_AGAIN, victim_of(t)))
@@ -317,7 +318,7 @@ class VictimTracker:
             track_id=self._next_track_id,
             kf=new_filter(np.array([obs.north_m, obs.east_m]), np.array(obs.cov_ne_m2)),
             state=TrackState.TENTATIVE,
-            log_odds=self._params.hit_log_odds,
+            log_odds=self._params.hit_log_odds if obs.supports else 0.0,
             observations=1,
             first_seen_unix_s=obs.t_unix_s,
             last_seen_unix_s=obs.t_unix_s,

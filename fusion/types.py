@@ -239,6 +239,9 @@ class Observation:
     # is, and how much of a body it shows, but not where a body seen whole lies.
     part_only: bool = False
     sensor: Sensor = Sensor.COLOUR
+    # It counts towards confirming a victim: not a warm find whose height the rover's
+    # motion has not shown yet (it may be warmth flat on the floor; issue 41).
+    supports: bool = True
 
     @property
     def cue(self) -> Cue:

@@ -132,6 +132,23 @@ def test_three_detections_in_five_frames_in_view_confirm() -> None:
     assert not _confirmed_after({0, 3, 6})
 
 
+def test_a_warm_find_of_unknown_height_is_followed_but_confirms_nothing() -> None:
+    """A warm find whose height the rover's motion has not shown yet may be warmth
+    flat on the floor (floor heating: issue 41): it keeps its track alive and placed,
+    and gives no support; the settled finds that follow confirm as any would."""
+    tracker = VictimTracker(PARAMS)
+    unsettled = [dataclasses.replace(obs(2.0, 1.0, 0.2 * i), supports=False) for i in range(10)]
+    for i, o in enumerate(unsettled):
+        tracker.update([o], T0 + 0.2 * i, always)
+    assert tracker.victims() == []
+    (tentative,) = tracker.victims(include_tentative=True)
+    assert tentative.observations == 10
+    for i in range(10, 13):
+        tracker.update([obs(2.0, 1.0, 0.2 * i)], T0 + 0.2 * i, always)
+    (victim,) = tracker.victims()
+    assert victim.track_id == tentative.track_id
+
+
 def test_confirmed_victims_are_never_deleted_and_flagged_when_unseen() -> None:
     tracker = VictimTracker(PARAMS)
     vid = confirmed_victim(tracker, 1.0, 2.0, 0.0)

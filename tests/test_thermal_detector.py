@@ -14,7 +14,7 @@ import pytest
 
 from companion.sources.flir import read_flir
 from companion.vision.base import FrameGeometry, VisionError
-from companion.vision.thermal import ThermalDetector, ThermalResult
+from companion.vision.thermal import UNSETTLED, ThermalDetector, ThermalResult
 from companion.vision.thermal_params import ThermalDetectorParams
 from companion.vision.visibility import assess
 from fusion.types import Urgency
@@ -451,3 +451,55 @@ def test_a_small_find_cut_by_the_frame_is_not_sized_as_a_part() -> None:
     (find,) = ThermalDetector().analyse(t, geometry, 0.0).finds
     assert find.detection.bbox_xywh_px[0] == 0
     assert "warm_part" not in find.detection.cues
+
+
+def _lepton_at(north_m: float) -> FrameGeometry:
+    """The Lepton of ``_lepton_on_a_rover`` on a rover ``north_m`` north, facing north."""
+    from companion.calibration import camera_model
+    from companion.config import Config, ThermalConfig
+    from fusion.types import PoseSample
+
+    pose = PoseSample(0.0, 0.0, north_m, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return FrameGeometry.from_pose(camera_model(ThermalConfig()), pose, Config().geolocation)
+
+
+def _quad(t: np.ndarray, geometry: FrameGeometry, near: list, far: list, c: float) -> None:
+    """Fill the pixels between the floor points ``near`` (two, its lower corners) and
+    ``far`` (two floor points whose pixels are its upper corners) with ``c``."""
+    px = geometry.pixels_of_floor(np.array(near + far))
+    assert px is not None and np.isfinite(px).all()
+    cv2.fillConvexPoly(t, np.round(px[[0, 1, 3, 2]]).astype(np.int32), float(c))
+
+
+@pytest.mark.parametrize("up_m", [0.0, 0.12])
+def test_warmth_flat_on_the_floor_is_told_from_a_body_by_the_rovers_motion(up_m: float) -> None:
+    # A warm patch 0.5 m wide, its near edge 3 m north; its far side (its top row) is
+    # either on the floor 0.6 m beyond (floor heating) or 0.12 m up (a leg, a body's
+    # upper side), which seen from 0.3 m up meets the floor at 5/3 of its range, a
+    # point that moves as the rover does. The rover drives north 0.1 m a frame.
+    detector = ThermalDetector()
+    cues: list[tuple[str, ...]] = []
+    reasons: list[str] = []
+    for i in range(16):
+        north = 0.1 * i
+        geometry = _lepton_at(north)
+        camera = geometry.along_ray(np.array([[80.0, 60.0]]), 0.0)
+        assert camera is not None
+        k = camera[0, 2] / (camera[0, 2] - up_m)  # where the far side's ray meets the floor
+        far_n = north + (3.6 - north) * k
+        t = _scene(seed=i)
+        _quad(t, geometry, [(3.0, -0.25), (3.0, 0.25)], [(far_n, -0.25), (far_n, 0.25)], 31.0)
+        result = detector.analyse(t, geometry, 0.2 * i)
+        cues += [f.detection.cues for f in result.finds] or [()]
+        reasons += [r.reason for r in result.rejected]
+    # Found at once, but unsettled (no support for a victim) until the rover has
+    # moved 1 m along the line of sight (frame 10 and on)...
+    assert cues[:10] == [("warm", UNSETTLED)] * 10, cues
+    if up_m == 0.0:
+        # ...then turned down as flat on the floor.
+        assert cues[11:] == [()] * 5, cues
+        assert reasons[-1].startswith("flat on the floor"), reasons
+    else:
+        # ...then a settled find in every frame: raised.
+        assert cues[11:] == [("warm",)] * 5, cues
+        assert not any(r.startswith("flat on the floor") for r in reasons)

@@ -51,10 +51,13 @@ from companion.vision.base import DEFAULT_SILHOUETTE_FILL, FrameGeometry, Vision
 from companion.vision.floorpoint import FloorParams, blob_floor_pixel
 from companion.vision.thermal_group import group_in_pixels, group_on_floor
 from companion.vision.thermal_params import ThermalDetectorParams
-from companion.vision.thermal_track import ThermalMemory
+from companion.vision.thermal_track import Shape, ThermalMemory, View
 from fusion.types import Detection
 
 SOURCE = "thermal"
+# The cue of a find larger than a part whose height is not known yet (thermal_track):
+# it may be warmth flat on the floor; it gives a tentative victim no support.
+UNSETTLED = "warm_unsettled"
 # The most of a body a lone warm part (a hand, a face, a forearm) shows.
 PART_SHARE_MAX = 0.05
 # A whole lying adult's silhouette on the floor (1.7 m x 0.45 m, 3/4 of it filled),
@@ -270,8 +273,26 @@ class ThermalDetector:
             part = like_m2 <= p.part_max_area_m2
             key, in_metres = None, False
         scale = (geometry.metres_per_px(u, v) if geometry is not None else None) or 1.0
-        if self.memory.observe(key or (u, v), in_metres, peak - amb, t_mono_s, scale):
+        view = _view(geometry, roi, box) if geometry is not None and in_metres else None
+        fading, track = self.memory.observe(
+            key or (u, v), in_metres, peak - amb, t_mono_s, scale, view
+        )
+        if fading:
             return reject("a warm imprint fading towards ambient")
+        if view is not None and part and track.flat_seen:
+            return reject("a piece of a warm region found flat on the floor before")
+        unsettled = False
+        if view is not None and not part:
+            height = track.height(p)
+            if height.shape == Shape.FLAT:
+                track.flat_seen = True
+                return reject(
+                    f"flat on the floor: its far edge stays put as the rover moves "
+                    f"({height.moved_m:.1f} m; {100 * (height.height_m or 0.0):.0f} cm high)"
+                )
+            # Its top row meets the floor and the rover's motion has not shown yet
+            # whether it lies flat: found, but no support for confirming a victim.
+            unsettled = height.shape == Shape.UNKNOWN and view.top_ne is not None
         score = _score(peak, amb, p)
         if score < self.min_score:
             return reject(f"score {score:.2f} under min_score {self.min_score:.2f}")
@@ -286,7 +307,7 @@ class ThermalDetector:
         seen_px = area_px
         if geometry is not None:
             seen_px = float(np.count_nonzero(vals >= amb + p.bare_min_contrast_k))
-        cues = ("warm", "warm_part") if part else ("warm",)
+        cues = ("warm", "warm_part") if part else ("warm", UNSETTLED) if unsettled else ("warm",)
         det = Detection(
             t_mono_s=t_mono_s,
             u_px=u,
@@ -449,6 +470,21 @@ def _floor_share(geometry: FrameGeometry, u: float, vs: np.ndarray) -> float:
         if geometry.metres_per_px(u, (band0 + i) * 8 + 4.0) is not None:
             on += float(counts[i])
     return on / float(vs.size)
+
+
+def _view(geometry: FrameGeometry, roi: np.ndarray, box: tuple[int, int, int, int]) -> View | None:
+    """The camera's floor position and where the region's top row meets the floor
+    (None there when it meets none in range or the frame cuts the region's top)."""
+    x0, y0 = box[0], box[1]
+    top_u = float(np.flatnonzero(roi[0]).mean()) + x0
+    camera = geometry.along_ray(np.array([[top_u, y0 + 0.5]]), 0.0)
+    if camera is None:
+        return None
+    top_ne = None
+    if y0 > 0:
+        ne = geometry.floor_ne_m(np.array([[top_u, y0 + 0.5]]))[0]
+        top_ne = (float(ne[0]), float(ne[1])) if np.isfinite(ne).all() else None
+    return View((float(camera[0, 0]), float(camera[0, 1])), float(camera[0, 2]), top_ne)
 
 
 def _floor_key(geometry: FrameGeometry, u: float, v: float) -> tuple[float, float] | None:

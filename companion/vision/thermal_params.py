@@ -73,6 +73,14 @@ class ThermalDetectorParams:
     track_radius_m: float = 0.4
     track_radius_px: float = 8.0
     track_forget_s: float = 5.0
+    # Height from the rover's motion (thermal_track): a find larger than a part whose
+    # top row meets the floor at a point that stays put (less than flat_max_height_m
+    # high by the slope), over the views of the last shape_window_s, once the camera
+    # has moved flat_motion_m along the line of sight, is warmth in the floor, not a
+    # person; one whose top row meets the floor is held back until then.
+    flat_max_height_m: float = 0.06
+    flat_motion_m: float = 1.0
+    shape_window_s: float = 15.0
     # A compact warm region (its box no longer than raised_aspect_max times its
     # width) nearer than its floor contact says, by its size against a face's or a
     # hand's (part_size_m, its longest warm extent), is a part raised on debris: a
