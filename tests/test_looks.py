@@ -308,6 +308,22 @@ def test_a_look_of_its_own_waits_until_the_looks_so_far_are_within_the_route_sha
     assert cmds == [SetMode(ROVER_GUIDED)]
 
 
+def test_a_dropped_request_is_said_whatever_holds_the_companions_own_looks_back() -> None:
+    # The operator asked about victim 4; it is resolved meanwhile. The rover is in
+    # HOLD, so no look of the companion's own (a tentative candidate) starts either:
+    # the operator still hears why their look was dropped.
+    m, victims = _machine_with_path()
+    victims[9] = _victim(9, TrackState.FALSE_ALARM, ne=(1.2, 3.5), victim_id=4)
+    m.ask(9, 4, 100.0)
+    found = candidates(victims.values(), 10.0, S)
+    assert found
+    here = Rover(True, 0.0, 5.5, 0.0)
+    cmds, says = m.step(100.0, here, _ap(100.0, ROVER_HOLD), found, victims)
+    assert (
+        cmds == [] and len(says) == 1 and "victim 4 the operator asked for dropped" in says[0].text
+    )
+
+
 def test_an_operator_mode_mid_look_ends_it_at_once_and_looks_stay_off() -> None:
     m, victims = _machine_with_path()
     _start(m, victims)

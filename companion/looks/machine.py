@@ -202,18 +202,18 @@ class LookMachine:
             return [], said
         if ap.heartbeat_s is not None and not ap.ardupilot_rover:
             if self._said_not_ardupilot:
-                return [], []
+                return [], said
             self._said_not_ardupilot = True
-            return [], [Say("closer looks need ArduPilot Rover: not supported here", 4)]
+            return [], [*said, Say("closer looks need ArduPilot Rover: not supported here", 4)]
         here = rover.ne
         if (
             here is None
             or not _on_route(ap, now_s)
             or self.counts.spent_s + s.look_s >= s.mission_budget_s
         ):
-            return [], []
+            return [], said
         if asked is None and self.counts.spent_s > s.route_share_pct / 100.0 * self.route_s:
-            return [], []  # the operator's look is theirs to spend; the companion's wait
+            return [], said  # the operator's look is theirs to spend; the companion's wait
         avoid = [(v.north_m, v.east_m) for v in victims.values() if v.state in LIVE_STATES]
         for c in found:
             again = c.track_id in self.looked and c is not asked  # the operator may ask again
@@ -234,8 +234,8 @@ class LookMachine:
             else:
                 what = f"a {c.kind.value} (victim {c.victim_id})"
             line = f"looking closer at {what} {compass(here, c.ne)} of here"
-            return [SetMode(ROVER_GUIDED)], [Say(line, _SEVERITY_NOTICE)]
-        return [], []
+            return [SetMode(ROVER_GUIDED)], [*said, Say(line, _SEVERITY_NOTICE)]
+        return [], said
 
     def _asked(
         self, now_s: float, victims: dict[int, Victim]
