@@ -19,6 +19,7 @@ from bench.accuracy import (
     BASELINE,
     GUARD,
     TOLERANCE,
+    Scenario,
     load_baseline,
     measure,
     regressions,
@@ -43,10 +44,14 @@ def test_baseline_was_measured_with_the_settings_this_test_uses(baseline: dict[s
     assert sum(f["matched"] for f in baseline["scenarios"].values()) >= 2
 
 
+# One test per mission: the test run's workers measure them side by side.
 @pytest.mark.timeout(240)
-def test_guard_missions_score_no_worse_than_the_baseline(baseline: dict[str, Any]) -> None:
-    measured = measure(GUARD)
-    worse = regressions(measured["scenarios"], baseline["scenarios"])
+@pytest.mark.parametrize("scenario", GUARD, ids=[s.key for s in GUARD])
+def test_guard_missions_score_no_worse_than_the_baseline(
+    baseline: dict[str, Any], scenario: Scenario
+) -> None:
+    measured = measure([scenario])
+    worse = regressions(measured["scenarios"], {scenario.key: baseline["scenarios"][scenario.key]})
     assert not worse, (
         "accuracy dropped below bench/accuracy_baseline.json:\n  "
         + "\n  ".join(worse)
