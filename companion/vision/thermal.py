@@ -26,6 +26,11 @@ exposed parts:
    horizon or out of range) is above the floor, where a lying person cannot be.
 4. Over frames (``thermal_track``): a find whose excess over ambient keeps falling,
    seen at the same scale, is a warm imprint where a person lay, and is dropped.
+   With a geometry, a find larger than a part whose top row meets the floor at a
+   point that stays put as the rover moves along the line of sight is warmth flat on
+   the floor (floor heating, an imprint), and is dropped, and so are the part-sized
+   pieces of it seen after; until the motion has shown its height such a find
+   carries the cue ``UNSETTLED`` (no support for a victim in the tracker).
 
 With a geometry a find's floor point is where the warm region meets the floor, not
 its centroid: from a camera 0.3 m up, warm skin and clothing 0.2 m above the floor
