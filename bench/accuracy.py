@@ -122,6 +122,19 @@ the dogs (which the person models take for a person too). Tried the same day and
 kept: a victim only the thermal camera has found confirmed only once seen not cut by
 the frame's side, which took 5 of them and no suite victim, but never reported a
 person under a blanket beside the route (docs/VISION.md, "Thermal").
+Since 2026-11-29 (later) the thermal detector tells warmth flat on the floor from a
+body by the rover's motion (docs/VISION.md, Thermal, item 4: a find's top row meets
+the floor at a point that stays put as the rover drives 1 m towards it; until then
+it gives a victim no support): 7 false victims instead of 15, the same victims
+found, urgencies and errors; the suite's median time to a first report the same, but
+``lawnmower``'s victims reported later (median 8.6 -> 23.8 s, slowest 40.9 -> 57.0 s:
+their warm finds wait for the rover's motion to show them raised). Left (as
+replayed from the earlier recordings): in ``thermal_warm_things`` the dog (found by
+the person models too), a warm part 2 m beyond it (its head taken for a raised
+face) and a colour body with warmth beside its heated floor; in
+``thermal_warm_things2`` a colour body with warmth between its dog and its heated
+floor and a lone warm part near its imprint; ``seed1``'s two are colour finds of
+debris.
 """
 
 from __future__ import annotations
