@@ -28,7 +28,9 @@ Per ``update`` (one processed camera frame, with or without detections):
    d^2 = y^T S^-1 y, S = P + R, against ``gate_chi2`` (and the metric bound); assign with the Hungarian
    method over the gated pairs, cost d^2 + ln det S (the negative log-likelihood,
    so a broad track does not steal a detection from a sharp one);
-3. matched tracks are updated and gain ``hit_log_odds`` (a RESCUED or FALSE_ALARM
+3. matched tracks are updated and gain ``hit_log_odds`` (none from an observation
+   that does not ``support`` one: a warm find whose height is not known yet, which
+   may be warmth flat on the floor; a RESCUED or FALSE_ALARM
    track absorbs its observations: no support, no events; a lone part, a hand or a
    face, of a victim already seen as a body supports it without moving it: where a
    hand lies is not where its body lies. Nor does it count for the victim's
