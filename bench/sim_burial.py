@@ -107,9 +107,7 @@ def measure_level(level_pct: int, seed: int = 0) -> dict[str, Any]:
         renderer = Renderer(world, camera, seed=k)
         for rng_m in RANGES_M:
             for bearing in BEARINGS_RAD:
-                n = v.visible_north_m - rng_m * math.cos(bearing)
-                e = v.visible_east_m - rng_m * math.sin(bearing)
-                pose = PoseSample(0.0, 0.0, n, e, -VEHICLE_HEIGHT_M, 0.0, 0.0, bearing)
+                pose = _facing(v, rng_m, bearing)
                 res = renderer.render(pose, frame_key=views)
                 if res.visible_px.get(v.victim_id, 0) < MIN_VIEW_PX:
                     continue
@@ -181,9 +179,7 @@ def thermal_views(level_pct: int, seed: int = 0, approach_m: float = 0.0) -> Ite
         renderer = ThermalRenderer(world, camera, seed=k)
         for rng_m in RANGES_M:
             for bearing in BEARINGS_RAD:
-                n = v.visible_north_m - rng_m * math.cos(bearing)
-                e = v.visible_east_m - rng_m * math.sin(bearing)
-                pose = PoseSample(0.0, 0.0, n, e, -VEHICLE_HEIGHT_M, 0.0, 0.0, bearing)
+                pose = _facing(v, rng_m, bearing)
                 shot = renderer.render(pose, 1.0, frame_key=key)
                 key += 1
                 px = shot.warm_px.get(v.victim_id, 0)
@@ -191,23 +187,20 @@ def thermal_views(level_pct: int, seed: int = 0, approach_m: float = 0.0) -> Ite
                     continue
                 approach = []
                 for j in range(round(approach_m / APPROACH_STEP_M), 0, -1):
-                    back = rng_m + j * APPROACH_STEP_M
-                    before = PoseSample(
-                        0.0,
-                        0.0,
-                        v.visible_north_m - back * math.cos(bearing),
-                        v.visible_east_m - back * math.sin(bearing),
-                        -VEHICLE_HEIGHT_M,
-                        0.0,
-                        0.0,
-                        bearing,
-                    )
+                    before = _facing(v, rng_m + j * APPROACH_STEP_M, bearing)
                     # Their own noise seeds, apart from the views' (which stay as they were).
                     frame = renderer.render(before, 1.0, frame_key=1_000_000 + 16 * key + j)
                     approach.append((before, frame.temps_c))
                 yield ThermalView(
                     level_pct, v, pose, camera, shot.temps_c, px, rng_m, bearing, tuple(approach)
                 )
+
+
+def _facing(v: Victim, range_m: float, bearing_rad: float) -> PoseSample:
+    """The rover ``range_m`` from the victim's visible centre, facing it on that bearing."""
+    n = v.visible_north_m - range_m * math.cos(bearing_rad)
+    e = v.visible_east_m - range_m * math.sin(bearing_rad)
+    return PoseSample(0.0, 0.0, n, e, -VEHICLE_HEIGHT_M, 0.0, 0.0, bearing_rad)
 
 
 def measure_thermal_level(

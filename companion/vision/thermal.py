@@ -485,10 +485,7 @@ def _view(geometry: FrameGeometry, roi: np.ndarray, box: tuple[int, int, int, in
     camera = geometry.along_ray(np.array([[top_u, y0 + 0.5]]), 0.0)
     if camera is None:
         return None
-    top_ne = None
-    if y0 > 0:
-        ne = geometry.floor_ne_m(np.array([[top_u, y0 + 0.5]]))[0]
-        top_ne = (float(ne[0]), float(ne[1])) if np.isfinite(ne).all() else None
+    top_ne = _floor_key(geometry, top_u, y0 + 0.5) if y0 > 0 else None
     return View((float(camera[0, 0]), float(camera[0, 1])), float(camera[0, 2]), top_ne)
 
 
